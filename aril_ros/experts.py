@@ -1,0 +1,167 @@
+"""Expert training (stable-baselines3 SAC) and the bundled policy files.
+
+Experts are trained with stable-baselines3's SAC and the rl-baselines3-zoo MuJoCo settings
+(``learning_starts=10000``, two hidden layers of 256, ``gamma=0.9999`` for Swimmer). The SAC actor
+is exported into the aril_ros policy format (see :mod:`aril_ros.policy`): its deterministic action
+``tanh(mu(s))`` scaled into the action bounds is exactly what :class:`MLPPolicy` computes, so the
+exported file needs neither SB3 nor the training code. During training the exported actor is
+evaluated on the rollout engine every ``eval_every`` steps and the best one is kept.
+
+Bundled files live in ``aril_ros/data/<kind>/<env_id>.pt``; a policy argument that is a bundled
+name (``expert``) resolves there.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import shlex
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .args import arg
+from .envs import layout_of, make_gym_env
+from .policy import MLPPolicy, PolicyFileError, PolicyMeta, load_policy, save_policy
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+BUNDLED_KINDS = ("expert",)
+
+# rl-baselines3-zoo's tuned SAC settings for the MuJoCo envs (hyperparams/sac.yml).
+SAC_DEFAULTS = dict(learning_starts=10_000, batch_size=256, learning_rate=3e-4, gamma=0.99, tau=0.005)
+SAC_PER_ENV = {"Swimmer-v5": dict(gamma=0.9999)}
+
+
+def bundled_path(kind: str, env_id: str) -> Path:
+    return DATA_DIR / kind / f"{env_id}.pt"
+
+
+def resolve_policy(name_or_path: str, env_id: str) -> MLPPolicy:
+    """A bundled name (``expert``) or a policy file path, checked against ``env_id``."""
+    if name_or_path in BUNDLED_KINDS:
+        path = bundled_path(name_or_path, env_id)
+        if not path.is_file():
+            raise PolicyFileError(
+                f"no bundled {name_or_path} for {env_id} (looked for {path}); bundled envs: "
+                + ", ".join(sorted(p.stem for p in (DATA_DIR / name_or_path).glob("*.pt")))
+            )
+        return load_policy(path, env_id)
+    if not Path(name_or_path).suffix:
+        raise PolicyFileError(
+            f"{name_or_path!r} is neither a bundled policy name ({', '.join(BUNDLED_KINDS)}) nor a file path"
+        )
+    return load_policy(name_or_path, env_id)
+
+
+def git_revision() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=DATA_DIR.parent, capture_output=True, text=True, timeout=5
+        )
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def export_sac_actor(model, env_id: str, provenance: dict) -> MLPPolicy:
+    """Copy an SB3 SAC actor (latent_pi: Linear-ReLU-Linear-ReLU, mu: Linear) into an MLPPolicy."""
+    layout = layout_of(env_id)
+    actor = model.policy.actor
+    hidden = [m.out_features for m in actor.latent_pi if isinstance(m, torch.nn.Linear)]
+    meta = PolicyMeta(
+        env_id=env_id,
+        obs_dim=layout.obs_dim,
+        act_dim=layout.act_dim,
+        action_low=list(layout.action_low),
+        action_high=list(layout.action_high),
+        hidden=hidden,
+        activation="relu",
+        squash="tanh",
+        provenance=provenance,
+    )
+    policy = MLPPolicy(meta)
+    linears = [m for m in actor.latent_pi if isinstance(m, torch.nn.Linear)] + [actor.mu]
+    with torch.no_grad():
+        for ours, theirs in zip([m for m in policy.net if isinstance(m, torch.nn.Linear)], linears):
+            ours.weight.copy_(theirs.weight)
+            ours.bias.copy_(theirs.bias)
+    return policy.eval()
+
+
+@dataclass
+class ExpertConfig:
+    """Arguments of ``aril train-expert``."""
+
+    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    steps: int = arg(300_000, "environment steps of SAC training")
+    seed: int = arg(0, "seed of SAC and of its env")
+    eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
+    eval_episodes: int = arg(5, "deterministic episodes per evaluation (env seeds 10000...)")
+    out: str = arg("", "where to write the expert (default: the bundled aril_ros/data/expert/<env>.pt)")
+    threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)")
+
+
+def train_expert(cfg: ExpertConfig, log=print) -> Path:
+    """Train SAC on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path."""
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from .rollout import RolloutEngine
+
+    torch.set_num_threads(cfg.threads)
+    layout_of(cfg.env)  # fail fast on ids that are not MuJoCo envs
+    out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
+    hyper = {**SAC_DEFAULTS, **SAC_PER_ENV.get(cfg.env, {})}
+    command = "aril train-expert " + " ".join(
+        f"{k}:={shlex.quote(str(v))}" for k, v in vars(cfg).items() if k != "out" or v
+    )
+    env = make_gym_env(cfg.env)
+    model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+    started = time.time()
+    best = {"mean_return": -np.inf}
+
+    def evaluate(step: int) -> None:
+        provenance = {
+            "algorithm": "stable-baselines3 SAC",
+            "hyperparameters": hyper,
+            "command": command,
+            "steps": step,
+            "train_seconds": round(time.time() - started, 1),
+            "seed": cfg.seed,
+            "git_revision": git_revision(),
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "torch": torch.__version__,
+        }
+        policy = export_sac_actor(model, cfg.env, provenance)
+        engine = RolloutEngine(cfg.env, policy, policy, n_envs=cfg.eval_episodes)
+        returns = engine.rollout(cfg.eval_episodes, seed=10_000).returns
+        engine.close()
+        mean, std = float(returns.mean()), float(returns.std())
+        kept = mean > best["mean_return"]
+        log(
+            f"[train-expert {cfg.env}] step {step:>8d}  {provenance['train_seconds']:8.0f}s  "
+            f"eval return {mean:9.1f} ± {std:7.1f}{'  (best, saved)' if kept else ''}",
+            flush=True,
+        )
+        if kept:
+            provenance["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": 10_000, "mean_return": mean}
+            best.update(mean_return=mean)
+            save_policy(policy, out)
+
+    class EvalCallback(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % cfg.eval_every == 0:
+                evaluate(self.num_timesteps)
+            return True
+
+    model.learn(cfg.steps, callback=EvalCallback())
+    if cfg.steps % cfg.eval_every:
+        evaluate(cfg.steps)
+    env.close()
+    log(json.dumps({"env": cfg.env, "out": str(out), "best_eval_return": best["mean_return"],
+                    "train_seconds": round(time.time() - started, 1)}), flush=True)
+    return out
+

@@ -1,0 +1,166 @@
+"""MLP policies and the single-file policy format.
+
+A policy file (``*.pt``) is one ``torch.save`` dict that ``torch.load(weights_only=True)`` reads, so
+loading never runs pickled code and needs none of the training code::
+
+    {
+      "format": "aril_ros.policy",
+      "version": 1,
+      "meta": "<JSON string>",          # see PolicyMeta: env id, sizes, architecture, action bounds,
+                                        # observation normalisation, provenance
+      "state_dict": {name: tensor},    # net.{0,2,4}.weight/bias and log_std
+    }
+
+The network is the paper's: two hidden layers. Its output is the action mean, squashed by ``tanh``
+into the action bounds (``squash="tanh"``, SAC-style) or clipped to them (``squash="clip"``). The
+deterministic mean action is used for evaluation; :meth:`MLPPolicy.sample` draws the Gaussian
+``N(mean, exp(log_std))`` used in training.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+FORMAT = "aril_ros.policy"
+VERSION = 1
+_ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
+_SQUASHES = ("tanh", "clip")
+
+
+class PolicyFileError(ValueError):
+    """A policy file is missing, corrupt, of another format, or made for another env."""
+
+
+@dataclass
+class PolicyMeta:
+    """Everything about a policy but its weights."""
+
+    env_id: str
+    obs_dim: int
+    act_dim: int
+    action_low: list[float]
+    action_high: list[float]
+    hidden: list[int] = field(default_factory=lambda: [256, 256])
+    activation: str = "relu"
+    squash: str = "tanh"
+    obs_mean: list[float] | None = None
+    """Observation normalisation: the net sees clip((obs - obs_mean) / obs_std, -obs_clip, obs_clip)."""
+    obs_std: list[float] | None = None
+    obs_clip: float | None = None
+    provenance: dict = field(default_factory=dict)
+    """How the weights were made: command, algorithm, steps, seconds, seed, git revision, evaluation."""
+
+    def __post_init__(self):
+        if len(self.hidden) != 2:
+            raise PolicyFileError(f"the policy MLP has two hidden layers, got hidden={self.hidden}")
+        if self.activation not in _ACTIVATIONS:
+            raise PolicyFileError(f"activation must be one of {sorted(_ACTIVATIONS)}, got {self.activation!r}")
+        if self.squash not in _SQUASHES:
+            raise PolicyFileError(f"squash must be one of {_SQUASHES}, got {self.squash!r}")
+        if len(self.action_low) != self.act_dim or len(self.action_high) != self.act_dim:
+            raise PolicyFileError("action bounds do not match act_dim")
+
+
+class MLPPolicy(nn.Module):
+    """obs -> normalise -> Linear-act-Linear-act-Linear -> squash into the action bounds."""
+
+    def __init__(self, meta: PolicyMeta, log_std_init: float = -0.5):
+        super().__init__()
+        self.meta = meta
+        act = _ACTIVATIONS[meta.activation]
+        h1, h2 = meta.hidden
+        self.net = nn.Sequential(
+            nn.Linear(meta.obs_dim, h1), act(), nn.Linear(h1, h2), act(), nn.Linear(h2, meta.act_dim)
+        )
+        self.log_std = nn.Parameter(torch.full((meta.act_dim,), float(log_std_init)))
+        low = torch.tensor(meta.action_low, dtype=torch.float32)
+        high = torch.tensor(meta.action_high, dtype=torch.float32)
+        self.register_buffer("action_low", low, persistent=False)
+        self.register_buffer("action_high", high, persistent=False)
+        mean = torch.zeros(meta.obs_dim) if meta.obs_mean is None else torch.tensor(meta.obs_mean)
+        std = torch.ones(meta.obs_dim) if meta.obs_std is None else torch.tensor(meta.obs_std)
+        self.register_buffer("obs_mean", mean.float(), persistent=False)
+        self.register_buffer("obs_std", std.float(), persistent=False)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """Deterministic (mean) action in env units for a batch of observations."""
+        x = (obs.float() - self.obs_mean) / self.obs_std
+        if self.meta.obs_clip is not None:
+            x = x.clamp(-self.meta.obs_clip, self.meta.obs_clip)
+        out = self.net(x)
+        if self.meta.squash == "tanh":
+            return self.action_low + (torch.tanh(out) + 1.0) * 0.5 * (self.action_high - self.action_low)
+        return torch.maximum(torch.minimum(out, self.action_high), self.action_low)
+
+    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Gaussian exploration action ``N(mean, exp(log_std))`` clipped to the action bounds."""
+        mean = self(obs)
+        noise = torch.randn(mean.shape, generator=generator)
+        return torch.maximum(torch.minimum(mean + noise * self.log_std.exp(), self.action_high), self.action_low)
+
+    @torch.inference_mode()
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic actions (float64) for a batch ``[n, obs_dim]`` or a single observation."""
+        return self(torch.as_tensor(np.asarray(obs), dtype=torch.float32)).double().numpy()
+
+    def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
+        """Raise :class:`PolicyFileError` if this policy was not made for that env."""
+        m = self.meta
+        if (m.env_id, m.obs_dim, m.act_dim) != (env_id, obs_dim, act_dim):
+            raise PolicyFileError(
+                f"policy is for {m.env_id} (obs {m.obs_dim}, act {m.act_dim}) but the env is "
+                f"{env_id} (obs {obs_dim}, act {act_dim})"
+            )
+
+
+def save_policy(policy: MLPPolicy, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    blob = {
+        "format": FORMAT,
+        "version": VERSION,
+        "meta": json.dumps(asdict(policy.meta), sort_keys=True),
+        "state_dict": {k: v.detach().clone() for k, v in policy.state_dict().items()},
+    }
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)  # never leave a half-written policy behind
+    return path
+
+
+def load_policy(path: str | Path, env_id: str | None = None) -> MLPPolicy:
+    """Load a policy file; with ``env_id``, also check it was made for that env."""
+    path = Path(path)
+    if not path.is_file():
+        raise PolicyFileError(f"{path}: no such policy file")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a damaged zip or pickle
+        raise PolicyFileError(f"{path}: not a readable policy file ({type(err).__name__}: {err})") from None
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise PolicyFileError(f"{path}: not an aril_ros policy file (format tag missing)")
+    if blob.get("version") != VERSION:
+        raise PolicyFileError(f"{path}: policy format version {blob.get('version')}, this aril_ros reads {VERSION}")
+    try:
+        meta = PolicyMeta(**json.loads(blob["meta"]))
+        policy = MLPPolicy(meta)
+        policy.load_state_dict(blob["state_dict"])
+    except PolicyFileError as err:
+        raise PolicyFileError(f"{path}: {err}") from None
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        raise PolicyFileError(f"{path}: corrupt policy file ({type(err).__name__}: {err})") from None
+    policy.eval()
+    if env_id is not None:
+        from .envs import layout_of
+
+        layout = layout_of(env_id)
+        try:
+            policy.check_env(env_id, layout.obs_dim, layout.act_dim)
+        except PolicyFileError as err:
+            raise PolicyFileError(f"{path}: {err}") from None
+    return policy
