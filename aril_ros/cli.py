@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from .args import ArgumentError, arg, parse_args, usage
 from .attacks import ATTACKS, make_attack
@@ -34,17 +35,20 @@ class EvalConfig:
     eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
-    n_envs: int = arg(8, "simulators run side by side (does not change the results)")
+    n_envs: int = arg(32, "simulators run side by side (does not change the results)")
     horizon: int = arg(1000, "steps per episode")
+    threads: int = arg(1, "torch threads (more only slows these small networks down)")
 
 
 def run_eval(cfg: EvalConfig) -> dict:
+    torch.set_num_threads(cfg.threads)
     attack_name = cfg.attack or ("none" if cfg.mode == "clean" else "random")
+    layout = layout_of(cfg.env)  # an unknown or non-MuJoCo id is the first thing to report
     policy = resolve_policy(cfg.policy, cfg.env)
     expert = resolve_policy(cfg.expert, cfg.env)
     if cfg.mode == "clean" and attack_name != "none":
         raise ArgumentError(f"mode:=clean runs no attack, got attack:={attack_name}")
-    attack = make_attack(attack_name, layout_of(cfg.env), cfg.eps if attack_name != "none" else 0.0)
+    attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     returns = np.zeros(cfg.episodes)

@@ -26,6 +26,17 @@ HORIZON = 1000  # the paper's episode length for every env
 POSITION, VELOCITY, OTHER = "position", "velocity", "other"
 
 
+def _mujoco_warning(message: str) -> None:
+    # gymnasium's Ant XML still uses 'settotalmass', which MuJoCo >= 4 flags at every compile and
+    # writes to MUJOCO_LOG.TXT in the working directory. It is harmless; every other warning is
+    # passed on as a Python warning instead of a stray log file.
+    if "settotalmass" not in message:
+        warnings.warn(f"MuJoCo: {message}", RuntimeWarning, stacklevel=2)
+
+
+mujoco.set_mju_user_warning(_mujoco_warning)
+
+
 class EnvLayoutError(ValueError):
     """The env id is unknown, not a MuJoCo env, or its observation has no qpos/qvel layout."""
 

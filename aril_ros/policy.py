@@ -30,6 +30,11 @@ FORMAT = "aril_ros.policy"
 VERSION = 1
 _ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
 _SQUASHES = ("tanh", "clip")
+# BLAS picks its kernels by batch size and they round differently, so one observation's action
+# would depend on how many others share its forward pass. Evaluating in fixed blocks of this many
+# rows makes each action a function of its own observation only: the same in a batch of 16 envs
+# as in a ROS node that sees one observation at a time.
+BLOCK_ROWS = 64
 
 
 class PolicyFileError(ValueError):
@@ -105,8 +110,18 @@ class MLPPolicy(nn.Module):
 
     @torch.inference_mode()
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Deterministic actions (float64) for a batch ``[n, obs_dim]`` or a single observation."""
-        return self(torch.as_tensor(np.asarray(obs), dtype=torch.float32)).double().numpy()
+        """Deterministic actions (float64) for a batch ``[n, obs_dim]`` or a single observation.
+
+        Batch-invariant: row i of the result does not depend on the other rows (see BLOCK_ROWS).
+        """
+        obs = np.asarray(obs, dtype=np.float32)
+        rows = np.atleast_2d(obs)
+        n = rows.shape[0]
+        padded = np.zeros((-(-n // BLOCK_ROWS) * BLOCK_ROWS, rows.shape[1]), dtype=np.float32)
+        padded[:n] = rows
+        blocks = torch.from_numpy(padded).split(BLOCK_ROWS)
+        actions = torch.cat([self(block) for block in blocks])[:n].double().numpy()
+        return actions[0] if obs.ndim == 1 else actions
 
     def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
         """Raise :class:`PolicyFileError` if this policy was not made for that env."""

@@ -1,0 +1,87 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from aril_ros.args import ArgumentError, parse_args
+from aril_ros.cli import EvalConfig, main
+from aril_ros.envs import PAPER_ENVS, make_gym_env
+from aril_ros.experts import bundled_path, export_sac_actor, resolve_policy
+from aril_ros.policy import PolicyFileError, save_policy
+
+
+def test_exported_sac_actor_acts_exactly_like_sb3():
+    from stable_baselines3 import SAC
+
+    env = make_gym_env("HalfCheetah-v5")
+    model = SAC("MlpPolicy", env, seed=0, device="cpu", learning_starts=50, batch_size=32,
+                policy_kwargs={"net_arch": [32, 32]})
+    model.learn(120)  # a few gradient steps so the weights are not the initial ones
+    policy = export_sac_actor(model, "HalfCheetah-v5", {"test": True})
+    obs = np.random.default_rng(0).normal(size=(20, 17)).astype(np.float32)
+    theirs, _ = model.predict(obs, deterministic=True)
+    np.testing.assert_allclose(policy.act(obs), theirs, atol=1e-6)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", PAPER_ENVS)
+def test_bundled_experts_load_with_provenance(env_id):
+    path = bundled_path("expert", env_id)
+    if not path.exists():
+        pytest.fail(f"bundled expert missing: {path}")
+    expert = resolve_policy("expert", env_id)
+    prov = expert.meta.provenance
+    assert prov["command"].startswith("aril train-expert") and prov["train_seconds"] > 0
+    assert expert.meta.hidden == [256, 256]
+
+
+def test_resolve_policy_errors():
+    with pytest.raises(PolicyFileError, match="no bundled expert for Hopper-v5"):
+        resolve_policy("expert", "Hopper-v5")
+    with pytest.raises(PolicyFileError, match="neither a bundled policy name"):
+        resolve_policy("dagger_typo", "Swimmer-v5")
+
+
+def test_key_value_arguments():
+    cfg = parse_args(EvalConfig, ["env:=Ant-v5", "eps:=0.2", "episodes:=3"])
+    assert (cfg.env, cfg.eps, cfg.episodes, cfg.mode) == ("Ant-v5", 0.2, 3, "clean")
+    with pytest.raises(ArgumentError, match="unknown argument 'epz'"):
+        parse_args(EvalConfig, ["epz:=0.1"])
+    with pytest.raises(ArgumentError, match="key:=value"):
+        parse_args(EvalConfig, ["--eps=0.1"])
+    with pytest.raises(ArgumentError, match="eps:= takes float"):
+        parse_args(EvalConfig, ["eps:=big"])
+
+
+def test_eval_prints_progress_and_a_json_summary(tmp_path, make_policy, capsys):
+    path = save_policy(make_policy("Swimmer-v5"), tmp_path / "p.pt")
+    code = main(["eval", "env:=Swimmer-v5", f"policy:={path}", f"expert:={path}", "mode:=sensory",
+                 "attack:=random", "eps:=0.1", "episodes:=3", "horizon:=50"])
+    out, err = capsys.readouterr()
+    assert code == 0
+    summary = json.loads(out.strip().splitlines()[-1])
+    for key in ("env", "policy", "mode", "attack", "eps", "episodes", "mean_return", "std_return",
+                "mean_expert_loss"):
+        assert key in summary
+    assert summary["steps"] == 150 and summary["mean_expert_loss"] > 0  # it saw perturbed observations
+    assert err.count("episode ") == 3 and "max|delta| 0.09" in err
+    assert main(["eval", "env:=Swimmer-v5", f"policy:={path}", f"expert:={path}", "horizon:=50"]) == 0
+    clean = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert clean["mean_expert_loss"] == 0.0 and clean["attack"] == "none"  # its own expert, unattacked
+
+
+def test_eval_errors_are_one_clear_line(capsys):
+    assert main(["eval", "env:=CartPole-v1"]) == 2
+    assert "not a gymnasium MuJoCo environment" in capsys.readouterr().err
+    assert main(["eval", "mode:=clean", "attack:=random"]) == 2
+    assert "mode:=clean runs no attack" in capsys.readouterr().err
+
+
+def test_help_and_module_entry_point():
+    out = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "mode:=" in out.stdout and "episodes:=" in out.stdout
+    out = subprocess.run([sys.executable, "-m", "aril_ros", "frobnicate"], capture_output=True, text=True)
+    assert out.returncode == 2 and "train-expert" in out.stdout

@@ -1,0 +1,74 @@
+import numpy as np
+import pytest
+import torch
+
+from aril_ros.policy import BLOCK_ROWS, PolicyFileError, load_policy, save_policy
+
+
+def test_round_trip_keeps_actions_and_meta(tmp_path, make_policy):
+    policy = make_policy("HalfCheetah-v5", seed=1)
+    policy.meta.obs_mean = list(np.linspace(-1, 1, 17))
+    policy.meta.obs_std = list(np.linspace(0.5, 2, 17))
+    policy.meta.obs_clip = 5.0
+    policy = type(policy)(policy.meta)  # rebuild so the normalisation buffers are set
+    path = save_policy(policy, tmp_path / "p.pt")
+    loaded = load_policy(path, "HalfCheetah-v5")
+    obs = np.random.default_rng(0).normal(size=(10, 17))
+    np.testing.assert_array_equal(policy.act(obs), loaded.act(obs))
+    assert loaded.meta == policy.meta
+
+
+def test_actions_respect_bounds_and_single_observation(make_policy):
+    policy = make_policy("Swimmer-v5")
+    obs = np.random.default_rng(0).normal(scale=100, size=(5, 8))
+    actions = policy.act(obs)
+    assert actions.shape == (5, 2) and np.all(np.abs(actions) <= 1)
+    np.testing.assert_array_equal(policy.act(obs[2]), actions[2])
+
+
+def test_actions_do_not_depend_on_batch_composition(make_policy):
+    policy = make_policy("Ant-v5", hidden=(256, 256))
+    obs = np.random.default_rng(0).normal(size=(3 * BLOCK_ROWS + 5, 105))
+    whole = policy.act(obs)
+    one_by_one = np.stack([policy.act(o) for o in obs])
+    np.testing.assert_array_equal(whole, one_by_one)
+
+
+def test_gaussian_sample_is_seeded_and_bounded(make_policy):
+    policy = make_policy("Swimmer-v5")
+    obs = torch.zeros(4, 8)
+    a = policy.sample(obs, torch.Generator().manual_seed(0))
+    b = policy.sample(obs, torch.Generator().manual_seed(0))
+    assert torch.equal(a, b) and not torch.equal(a, policy(obs))
+    assert torch.all(a.abs() <= 1)
+
+
+def test_mismatched_env_is_named(tmp_path, make_policy):
+    path = save_policy(make_policy("Swimmer-v5"), tmp_path / "swim.pt")
+    with pytest.raises(PolicyFileError, match=r"policy is for Swimmer-v5 \(obs 8, act 2\) but the env is "
+                                               r"HalfCheetah-v5 \(obs 17, act 6\)"):
+        load_policy(path, "HalfCheetah-v5")
+
+
+def test_corrupt_and_foreign_files_are_rejected(tmp_path, make_policy):
+    good = save_policy(make_policy("Swimmer-v5"), tmp_path / "good.pt").read_bytes()
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(good[: len(good) // 2])
+    with pytest.raises(PolicyFileError, match="not a readable policy file"):
+        load_policy(truncated)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(PolicyFileError, match="not an aril_ros policy file"):
+        load_policy(foreign)
+    with pytest.raises(PolicyFileError, match="no such policy file"):
+        load_policy(tmp_path / "missing.pt")
+    blob = torch.load(tmp_path / "good.pt", weights_only=True)
+    blob["state_dict"].pop("net.2.weight")
+    torch.save(blob, tmp_path / "missing_key.pt")
+    with pytest.raises(PolicyFileError, match="corrupt policy file"):
+        load_policy(tmp_path / "missing_key.pt")
+    blob = torch.load(tmp_path / "good.pt", weights_only=True)
+    blob["version"] = 99
+    torch.save(blob, tmp_path / "future.pt")
+    with pytest.raises(PolicyFileError, match="version 99"):
+        load_policy(tmp_path / "future.pt")
