@@ -11,6 +11,7 @@ import json
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -19,6 +20,7 @@ from .args import ArgumentError, arg, parse_args, usage
 from .attacks import ATTACKS, make_attack
 from .envs import EnvLayoutError, layout_of
 from .experts import ExpertConfig, resolve_policy, train_expert
+from .mcap_log import RunLogError, recover
 from .policy import PolicyFileError
 from .rollout import MODES, RolloutEngine
 
@@ -82,9 +84,38 @@ def run_eval(cfg: EvalConfig) -> dict:
     return summary
 
 
+@dataclass
+class RecoverConfig:
+    """Arguments of ``aril log-recover``."""
+
+    input: str = arg("", "a run log that was cut short (the run was killed)")
+    out: str = arg("", "where to write the recovered log (default: <input>.recovered.mcap)")
+
+
+def run_recover(cfg: RecoverConfig) -> int:
+    out = cfg.out or str(Path(cfg.input).with_suffix("")) + ".recovered.mcap"
+    steps = recover(cfg.input, out)
+    print(f"recovered {steps} complete steps into {out}")
+    return steps
+
+
+def run_replay(cfg) -> int:
+    from nodes.replay import replay  # the only subcommand that needs ROS
+
+    return replay(cfg)
+
+
+def _replay_config():
+    from nodes.replay import ReplayConfig
+
+    return ReplayConfig
+
+
 COMMANDS = {
     "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
     "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
+    "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
+    "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }
 
 
@@ -96,12 +127,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {name:<14} {summary}")
         return 0 if not argv or argv[0] in ("-h", "--help") else 2
     cls, run, summary = COMMANDS[argv[0]]
+    cls = cls if isinstance(cls, type) else cls()
     if "-h" in argv[1:] or "--help" in argv[1:]:
         print(usage(cls, f"aril {argv[0]}", summary))
         return 0
     try:
         run(parse_args(cls, argv[1:]))
-    except (ArgumentError, EnvLayoutError, PolicyFileError, ValueError) as err:
+    except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError) as err:
         print(f"aril {argv[0]}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

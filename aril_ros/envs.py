@@ -56,6 +56,8 @@ class ObsLayout:
     n_velocity: int
     names: tuple[str, ...]
     """One name per observation entry, e.g. ``rooty:pos``, ``bthigh:vel``, ``other[3]``."""
+    action_names: tuple[str, ...]
+    """One name per action entry: the MuJoCo actuators."""
 
     @property
     def position(self) -> slice:
@@ -112,6 +114,9 @@ def _entry_names(model: mujoco.MjModel, address_of: str, width_of: dict[int, int
     return names
 
 
+# mjSTATE_INTEGRATION vectors start with time, then qpos (MuJoCo orders components by mjtState bit).
+STATE_QPOS_START = 1
+
 _QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # free, ball, slide, hinge
 _QVEL_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 
@@ -162,9 +167,22 @@ def layout_of(env_id: str) -> ObsLayout:
             n_position=n_position,
             n_velocity=n_velocity,
             names=tuple(names),
+            action_names=tuple(model.actuator(i).name or f"actuator{i}" for i in range(model.nu)),
         )
     finally:
         env.close()
+
+
+def perturbed_state(layout: ObsLayout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """An ``mjSTATE_INTEGRATION`` vector with ``delta[position]`` added to its qpos part.
+
+    What a physical attacker sends to the simulator's set-state service: it gives bit-for-bit the
+    qpos that :meth:`MujocoSim.perturb` writes, so the graph follows the in-process engine exactly.
+    """
+    new = np.array(state, dtype=np.float64)
+    start = STATE_QPOS_START + layout.qpos_offset
+    new[start : start + layout.n_position] += delta[layout.position]
+    return new
 
 
 class MujocoSim:
@@ -212,6 +230,18 @@ class MujocoSim:
             raise ValueError("state contains non-finite values")
         mujoco.mj_setState(self.model, self.data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
         mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def dt(self) -> float:
+        """Seconds of sim time per control step."""
+        return float(self._sim.dt)
+
+    @property
+    def state_names(self) -> list[str]:
+        """Names of the :meth:`get_state` entries: time, every qpos and qvel, then the rest."""
+        names = ["time"] + _entry_names(self.model, "qpos", _QPOS_WIDTH, "pos")
+        names += _entry_names(self.model, "qvel", _QVEL_WIDTH, "vel")
+        return names + [f"state[{i}]" for i in range(len(names), self._state_size)]
 
     def perturb(self, delta: np.ndarray) -> np.ndarray:
         """Physical attack: move the real zero-order state by ``delta`` (observation coordinates).

@@ -88,3 +88,19 @@ def test_reset_is_seeded_not_global():
     ob = b.reset(seed=7)
     np.testing.assert_array_equal(oa, ob)
     assert not np.array_equal(oa, a.reset(seed=8))
+
+
+def test_perturbed_state_vector_matches_in_place_perturbation():
+    from aril_ros.envs import perturbed_state
+
+    a, b = MujocoSim("Ant-v5"), MujocoSim("Ant-v5")
+    a.reset(seed=2)
+    b.reset(seed=2)
+    delta = np.zeros(a.layout.obs_dim)
+    delta[a.layout.position] = np.random.default_rng(0).uniform(-0.1, 0.1, a.layout.n_position)
+    obs_a = a.perturb(delta)
+    b.set_state(perturbed_state(b.layout, b.get_state(), delta))
+    np.testing.assert_array_equal(obs_a, b.observe())
+    np.testing.assert_array_equal(a.get_state(), b.get_state())
+    assert len(a.state_names) == a.state_size and a.state_names[0] == "time"
+    assert a.state_names[1] == "root[0]:pos"

@@ -1,0 +1,64 @@
+"""The graph's step protocol, shared by the ROS nodes, the recorder and the log reader (no rclpy).
+
+Every message of one control step carries the same header: ``stamp`` is the step's sim time and
+``frame_id`` is the step tag ``"<episode>/<step>"``, so a step's state, perturbation, observation,
+action, expert label and reward join on the tag without guessing. Sim time runs on across episodes
+(global step ``g`` has stamp ``g * dt``), so stamps and log times are monotonic over a whole run.
+msgs_doc/README.md is the human-readable form of this module.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# Topic names, relative so that ``-r __ns:=/robot1`` namespaces a whole graph.
+STATE = "sim/state"  # sensor_msgs/JointState: position = true observation (what the expert labels)
+PHYSICS = "sim/physics_state"  # sensor_msgs/JointState: position = full MuJoCo integration state
+REWARD = "sim/reward"  # sensor_msgs/JointState: names reward/terminated/truncated, position = values
+OBSERVATION = "observation"  # sensor_msgs/JointState: position = the observation the policy sees
+PERTURBATION = "attack/perturbation"  # sensor_msgs/JointState: position = delta (observation coords)
+ACTION = "action"  # sensor_msgs/JointState: effort = the policy's action
+EXPERT_ACTION = "expert/action"  # sensor_msgs/JointState: effort = the expert's action on the true state
+CLOCK = "/clock"  # rosgraph_msgs/Clock: sim time, one message per step
+RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
+SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
+
+# What a step needs before it is complete, in the order the recorder writes it.
+STEP_TOPICS = (CLOCK, PHYSICS, STATE, PERTURBATION, OBSERVATION, ACTION, EXPERT_ACTION, REWARD)
+REWARD_NAMES = ("reward", "terminated", "truncated")
+
+MESSAGE_TYPES = {
+    STATE: "sensor_msgs/msg/JointState",
+    PHYSICS: "sensor_msgs/msg/JointState",
+    REWARD: "sensor_msgs/msg/JointState",
+    OBSERVATION: "sensor_msgs/msg/JointState",
+    PERTURBATION: "sensor_msgs/msg/JointState",
+    ACTION: "sensor_msgs/msg/JointState",
+    EXPERT_ACTION: "sensor_msgs/msg/JointState",
+    CLOCK: "rosgraph_msgs/msg/Clock",
+}
+
+# Step topics are reliable and keep everything: the chain runs in lockstep, but a slow recorder
+# must throttle the publishers (back-pressure) rather than miss a step.
+QOS = {"reliability": "reliable", "history": "keep_all", "durability": "volatile"}
+
+
+@dataclass(frozen=True, order=True)
+class StepTag:
+    episode: int
+    step: int
+
+    def __str__(self) -> str:
+        return f"{self.episode}/{self.step}"
+
+    @classmethod
+    def parse(cls, text: str) -> "StepTag":
+        try:
+            episode, step = text.split("/")
+            return cls(int(episode), int(step))
+        except ValueError:
+            raise ValueError(f"not a step tag (want '<episode>/<step>'): {text!r}") from None
+
+
+def stamp_ns(global_step: int, dt: float) -> int:
+    """Sim time of a global step in nanoseconds (integer, so it is exact and monotonic)."""
+    return round(global_step * dt * 1e9)

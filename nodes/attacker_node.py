@@ -1,0 +1,94 @@
+"""Attacker node: perturbs the zero-order state within ±eps, as the mode says.
+
+Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random), ``eps``,
+``seed``. Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
+engine, so both give the same perturbations.
+
+- clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation`` = state + delta.
+- physical: on ``sim/state`` and ``sim/physics_state`` of the same step, send the perturbed physical
+  state to ``sim/set_state``; the simulator then publishes the ``observation`` of the moved state, and
+  this node publishes ``attack/perturbation`` once the service has accepted it.
+"""
+from __future__ import annotations
+
+import numpy as np
+from rcl_interfaces.srv import SetParametersAtomically
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from aril_ros import protocol as P
+from aril_ros.attacks import make_attack
+from aril_ros.envs import layout_of, perturbed_state
+from aril_ros.protocol import StepTag
+from aril_ros.rollout import MODES, episode_rng
+from nodes.common import STEP_QOS, FatalNodeError, declared, joint_state, main_for, param_msg
+
+
+class AttackerNode(Node):
+    def __init__(self):
+        super().__init__("attacker")
+        self.layout = layout_of(declared(self, "env", "HalfCheetah-v5"))
+        self.mode = declared(self, "mode", "sensory")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        attack = declared(self, "attack", "none" if self.mode == "clean" else "random")
+        if self.mode == "clean" and attack != "none":
+            raise ValueError(f"mode clean runs no attack, got attack {attack!r}")
+        self.attack = make_attack(attack, self.layout, declared(self, "eps", 0.0) if attack != "none" else 0.0)
+        self.seed = declared(self, "seed", 0)
+        self.rng = None
+        self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)
+        self.create_subscription(JointState, P.STATE, self.on_state, STEP_QOS)
+        if self.mode == "physical":
+            self.physics: dict[str, JointState] = {}
+            self.states: dict[str, JointState] = {}
+            self.create_subscription(JointState, P.PHYSICS, self.on_physics, STEP_QOS)
+            self.set_state = self.create_client(SetParametersAtomically, P.SET_STATE_SERVICE)
+        else:
+            self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
+        self.get_logger().info(f"{self.mode} attack {self.attack.name} eps={self.attack.eps}")
+
+    def perturbation(self, state: JointState) -> tuple[np.ndarray, np.ndarray]:
+        tag = StepTag.parse(state.header.frame_id)
+        if tag.step == 0:  # a (re)started episode draws its noise from the start again
+            self.rng = episode_rng(self.seed, tag.episode)
+        true_obs = np.asarray(state.position, dtype=np.float64)
+        return true_obs, self.attack.perturb(true_obs[None], [self.rng])[0]
+
+    def on_state(self, msg: JointState) -> None:
+        if self.mode == "physical":
+            self.states[msg.header.frame_id] = msg
+            self.try_physical(msg.header.frame_id)
+            return
+        true_obs, delta = self.perturbation(msg)
+        self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
+        self.observation_pub.publish(joint_state(msg.header, self.layout.names, true_obs + delta))
+
+    def on_physics(self, msg: JointState) -> None:
+        self.physics[msg.header.frame_id] = msg
+        self.try_physical(msg.header.frame_id)
+
+    def try_physical(self, tag: str) -> None:
+        if tag not in self.states or tag not in self.physics:
+            return  # the other half of this step has not arrived yet
+        state, physics = self.states.pop(tag), self.physics.pop(tag)
+        _, delta = self.perturbation(state)
+        request = SetParametersAtomically.Request()
+        request.parameters = [param_msg("state", perturbed_state(self.layout, physics.position, delta)),
+                              param_msg("tag", tag)]
+        future = self.set_state.call_async(request)
+        future.add_done_callback(lambda f: self.on_set_state_done(f, state.header, delta))
+
+    def on_set_state_done(self, future, header, delta) -> None:
+        result = future.result().result
+        if not result.successful:
+            raise FatalNodeError(f"sim/set_state refused step {header.frame_id}: {result.reason}")
+        self.perturbation_pub.publish(joint_state(header, self.layout.names, delta))
+
+
+def main(args=None):
+    raise SystemExit(main_for(AttackerNode, args))
+
+
+if __name__ == "__main__":
+    main()

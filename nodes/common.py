@@ -1,0 +1,108 @@
+"""rclpy plumbing shared by the nodes: QoS, JointState messages, the spin loop, fatal errors."""
+from __future__ import annotations
+
+import sys
+import traceback
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterValue
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from aril_ros.protocol import StepTag
+
+STEP_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+    depth=1,
+)
+
+
+class FatalNodeError(RuntimeError):
+    """Raised inside a callback to stop the node with a clear last error (exit code 1)."""
+
+
+def joint_state(header, names, position=None, effort=None) -> JointState:
+    msg = JointState()
+    msg.header = header
+    msg.name = list(names)
+    if position is not None:
+        msg.position = np.asarray(position, dtype=np.float64).tolist()
+    if effort is not None:
+        msg.effort = np.asarray(effort, dtype=np.float64).tolist()
+    return msg
+
+
+def step_header(tag: StepTag, stamp_ns: int):
+    from std_msgs.msg import Header
+
+    header = Header()
+    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    header.frame_id = str(tag)
+    return header
+
+
+def request_params(request) -> dict:
+    """``{name: python value}`` of a SetParametersAtomically request."""
+    return {p.name: parameter_value_to_python(p.value) for p in request.parameters}
+
+
+def param_msg(name: str, value) -> ParameterMsg:
+    """A ``rcl_interfaces/Parameter`` for an int, a string or a float sequence."""
+    v = ParameterValue()
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        v.type, v.integer_value = 2, int(value)
+    elif isinstance(value, str):
+        v.type, v.string_value = 4, value
+    else:
+        v.type, v.double_array_value = 8, np.asarray(value, dtype=np.float64).tolist()
+    return ParameterMsg(name=name, value=v)
+
+
+def declared(node: Node, name: str, default):
+    return node.declare_parameter(name, default).value
+
+
+def spin(node: Node) -> int:
+    """Spin until shutdown; a :class:`FatalNodeError` (or any crash) is logged and gives exit code 1.
+
+    Uses ``EventsExecutor`` driven by ``spin_once``: about twice the rate of the default executor.
+    """
+    executor = EventsExecutor()
+    executor.add_node(node)
+    code = 0
+    try:
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.2)
+    except KeyboardInterrupt:
+        pass
+    except FatalNodeError as err:
+        print(f"[{node.get_name()}] FATAL: {err}", file=sys.stderr, flush=True)
+        code = 1
+    except Exception as err:  # a crash in a callback: report it the same way, with the trace
+        traceback.print_exc()
+        print(f"[{node.get_name()}] FATAL: {type(err).__name__}: {err}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return code
+
+
+def main_for(node_class, args=None) -> int:
+    rclpy.init(args=args)
+    try:
+        node = node_class()
+    except Exception as err:  # bad parameters, missing policy file, unknown env: say so and stop
+        print(f"[{node_class.__name__}] FATAL: {err}", file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        return 1
+    return spin(node)

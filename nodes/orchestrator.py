@@ -1,0 +1,422 @@
+"""The orchestrator behind ``run_graph.py``: starts the nodes, drives episodes, records, shuts down.
+
+It stands in for ``ros2 launch`` and ``ros2 bag record``: each node is its own process
+(``python -m nodes.<name>_node --ros-args ...``) in a ROS domain of its own; the orchestrator's
+node resets the simulator at each episode start, records every step topic (raw CDR, see
+:mod:`aril_ros.mcap_log`), prints per-episode figures and one JSON summary line, and stops every
+node on success, on Ctrl-C / SIGTERM, when a node dies (naming it and its last error) and when a
+step makes no progress for ``step_timeout`` seconds.
+"""
+from __future__ import annotations
+
+import ctypes
+import datetime
+import fcntl
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from aril_ros import __version__
+from aril_ros import protocol as P
+from aril_ros.args import arg
+from aril_ros.attacks import ATTACKS
+from aril_ros.envs import layout_of
+from aril_ros.experts import git_revision, resolve_policy
+from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
+from aril_ros.protocol import StepTag
+from aril_ros.rollout import MODES
+
+ROOT = Path(__file__).resolve().parent.parent
+NODE_MODULES = {"simulator": "nodes.simulator_node", "attacker": "nodes.attacker_node",
+                "policy": "nodes.policy_node", "expert": "nodes.expert_node"}
+
+
+@dataclass
+class GraphConfig:
+    """Arguments of ``run_graph.py``."""
+
+    mode: str = arg("sensory", f"one of {', '.join(MODES)}")
+    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
+    eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
+    episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
+    seed: int = arg(0, "seed of the first episode and of the attack noise")
+    policy: str = arg("expert", "a bundled name (expert), a policy file, or external (start none, wait for one)")
+    expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")
+    horizon: int = arg(1000, "steps per episode")
+    record: str = arg("", "MCAP file to record to (default: runs/<time>-<env>-<mode>.mcap; off: no file)")
+    domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
+    connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
+    step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck")
+
+
+class GraphError(RuntimeError):
+    """The run cannot go on: a node died, did not connect, or stopped answering."""
+
+
+def allocate_domain(requested: str):
+    """A ROS domain id no other aril_ros run on this machine holds, and the open lock file holding it."""
+    lock_dir = Path(tempfile.gettempdir()) / "aril_ros-domains"
+    lock_dir.mkdir(exist_ok=True)
+    candidates = [int(requested)] if requested != "auto" else [1 + (os.getpid() + i) % 200 for i in range(200)]
+    for domain in candidates:
+        handle = open(lock_dir / f"{domain}.lock", "w")
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return domain, handle
+        except OSError:
+            handle.close()
+    raise GraphError(f"ROS domain {requested} is held by another aril_ros run" if requested != "auto"
+                     else "no free ROS domain id (1..200)")
+
+
+def _detach_but_die_with_parent() -> None:
+    # Own session: a terminal's Ctrl-C reaches only the orchestrator, which stops the nodes in order.
+    # Parent-death signal: if the orchestrator is killed outright, no node is left running.
+    os.setsid()
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class NodeProcess:
+    """One node as a child process with its output in a log file."""
+
+    def __init__(self, name: str, params: dict, log_dir: Path, env: dict):
+        self.name = name
+        self.log_path = log_dir / f"{name}.log"
+        cmd = [sys.executable, "-m", NODE_MODULES[name], "--ros-args"]
+        for key, value in params.items():
+            cmd += ["-p", f"{key}:={value}"]
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
+                                     preexec_fn=_detach_but_die_with_parent)
+
+    def exited(self) -> int | None:
+        return self.proc.poll()
+
+    def last_error(self) -> str:
+        lines = [ln.strip() for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()]
+        fatal = [ln for ln in lines if "FATAL" in ln or "Error" in ln]
+        return (fatal or lines or ["(no output)"])[-1]
+
+    def stop(self, grace: float = 3.0) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+
+
+class Orchestrator:
+    def __init__(self, cfg: GraphConfig, log=print):
+        self.cfg, self.log = cfg, log
+        if cfg.mode not in MODES:
+            raise GraphError(f"mode:= must be one of {', '.join(MODES)}, got {cfg.mode!r}")
+        self.attack = cfg.attack or ("none" if cfg.mode == "clean" else "random")
+        if cfg.mode == "clean" and self.attack != "none":
+            raise GraphError(f"mode:=clean runs no attack, got attack:={self.attack}")
+        if self.attack not in ATTACKS:
+            raise GraphError(f"attack:= must be one of {', '.join(ATTACKS)}, got {self.attack!r}")
+        self.eps = cfg.eps if self.attack != "none" else 0.0
+        self.layout = layout_of(cfg.env)
+        # load both now: a bad file is reported before any process starts
+        self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
+        self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env).meta
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        self.record = None if cfg.record == "off" else Path(cfg.record or f"runs/{stamp}-{cfg.env}-{cfg.mode}.mcap")
+        self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
+        self.nodes: list[NodeProcess] = []
+
+    # ----------------------------------------------------------------------------------- set-up
+    def start_nodes(self, env: dict) -> None:
+        cfg = self.cfg
+        common = {"env": cfg.env}
+        specs = {
+            "simulator": {**common, "horizon": cfg.horizon},
+            "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed},
+            "expert": {**common, "expert": cfg.expert},
+        }
+        if cfg.policy != "external":
+            specs["policy"] = {**common, "policy": cfg.policy}
+        self.nodes = [NodeProcess(name, params, self.log_dir, env) for name, params in specs.items()]
+
+    def check_nodes(self) -> None:
+        for node in self.nodes:
+            code = node.exited()
+            if code is not None:
+                raise GraphError(f"node '{node.name}' exited with code {code}: {node.last_error()} "
+                                 f"(full log: {node.log_path})")
+
+    def expected_endpoints(self) -> dict[str, tuple[int, int]]:
+        """(publishers, subscribers) each step topic needs before the first episode starts."""
+        physical = self.cfg.mode == "physical"
+        return {
+            P.STATE: (1, 3), P.PHYSICS: (1, 2 if physical else 1), P.REWARD: (1, 1), P.CLOCK: (1, 1),
+            P.OBSERVATION: (1 if physical else 2, 2), P.PERTURBATION: (1, 1),
+            P.ACTION: (1, 2), P.EXPERT_ACTION: (1, 1),
+        }
+
+    def wait_connected(self, ros) -> None:
+        deadline = time.monotonic() + self.cfg.connect_timeout
+        while True:
+            self.check_nodes()
+            missing = []
+            for topic, (pubs, subs) in self.expected_endpoints().items():
+                name = ros.node.resolve_topic_name(topic)
+                if ros.node.count_publishers(name) < pubs:
+                    missing.append(f"publisher on {name}")
+                if ros.node.count_subscribers(name) < subs:
+                    missing.append(f"subscriber on {name}")
+            if not ros.reset_client.service_is_ready():
+                missing.append(f"service {ros.node.resolve_topic_name(P.RESET_SERVICE)}")
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                who = "an external policy node" if self.cfg.policy == "external" else "the graph"
+                raise GraphError(f"{who} did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
+                                 + ", ".join(missing))
+            ros.spin(0.05)
+
+    def run_metadata(self) -> dict:
+        cfg = self.cfg
+        return {
+            "env": cfg.env, "mode": cfg.mode, "attack": self.attack, "eps": self.eps, "seed": cfg.seed,
+            "episodes": cfg.episodes, "horizon": cfg.horizon, "policy": cfg.policy, "expert": cfg.expert,
+            "policy_provenance": self.policy_meta.provenance if self.policy_meta else "external",
+            "expert_provenance": self.expert_meta.provenance, "obs_names": list(self.layout.names),
+            "action_names": list(self.layout.action_names), "aril_ros": __version__,
+            "git_revision": git_revision(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
+        }
+
+    # -------------------------------------------------------------------------------------- run
+    def run(self) -> dict:
+        domain, domain_lock = allocate_domain(self.cfg.domain)
+        env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
+               "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+               "PYTHONUNBUFFERED": "1"}
+        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
+                 f"domain={domain} logs={self.log_dir}", file=sys.stderr)
+        writer = RunLogWriter(self.record, self.run_metadata()) if self.record else None
+        recorder = StepRecorder(writer)
+        ros = None
+        interrupted, reason = False, ""
+        previous_sigterm = signal.signal(signal.SIGTERM, _raise_interrupt)
+        try:
+            self.start_nodes(env)
+            ros = GraphClient(recorder)
+            self.wait_connected(ros)
+            started = time.monotonic()
+            for episode in range(self.cfg.episodes):
+                self.run_episode(ros, recorder, episode)
+            seconds = time.monotonic() - started
+        except KeyboardInterrupt:
+            interrupted, reason = True, "interrupted by the user (SIGINT/SIGTERM)"
+            raise
+        except GraphError as err:
+            interrupted, reason = True, str(err)
+            raise
+        finally:
+            signal.signal(signal.SIGTERM, previous_sigterm)
+            for node in self.nodes:
+                node.stop()
+            if ros is not None:
+                ros.close()
+            if writer is not None:
+                writer.close(interrupted=interrupted, reason=reason,
+                             episodes_completed=len(recorder.episode_stats))
+                self.log(f"[run_graph] recorded {writer.steps} complete steps to {self.record}", file=sys.stderr)
+            domain_lock.close()
+        return self.summary(recorder, seconds, domain)
+
+    def run_episode(self, ros, recorder: "StepRecorder", episode: int) -> None:
+        tries = 0
+        while True:
+            recorder.start_episode(episode)
+            ros.reset(seed=self.cfg.seed + episode, episode=episode, check=self.check_nodes,
+                      timeout=self.cfg.step_timeout)
+            last_progress, progress = time.monotonic(), recorder.steps_written
+            while not recorder.episode_done:
+                ros.spin(0.05)
+                self.check_nodes()
+                if recorder.steps_written != progress:
+                    last_progress, progress = time.monotonic(), recorder.steps_written
+                    continue
+                stalled = time.monotonic() - last_progress
+                # The first message of a new graph can be lost while DDS endpoints are still being
+                # matched; a reset of the same episode repeats it exactly (same seeds), so retry once.
+                if recorder.episode_steps == 0 and stalled > 2.0 and tries < 1:
+                    tries += 1
+                    self.log(f"[run_graph] episode {episode}: no first step after 2 s, resetting again",
+                             file=sys.stderr)
+                    break
+                if stalled > self.cfg.step_timeout:
+                    raise GraphError(f"step {recorder.waiting_for()} made no progress for "
+                                     f"{self.cfg.step_timeout:.0f} s: {recorder.missing_text()}"
+                                     + (" (is the external policy still running?)" if self.cfg.policy ==
+                                        "external" else ""))
+            else:
+                stats = recorder.episode_stats[-1]
+                self.log(f"episode {episode:3d}  return {stats['return']:9.1f}  expert loss "
+                         f"{stats['expert_loss']:.4f}  steps {stats['steps']:4d}  max|delta| "
+                         f"{stats['max_delta']:.4f}", file=sys.stderr, flush=True)
+                return
+
+    def summary(self, recorder: "StepRecorder", seconds: float, domain: int) -> dict:
+        stats = recorder.episode_stats
+        returns = np.array([s["return"] for s in stats])
+        steps = sum(s["steps"] for s in stats)
+        return {
+            "mode": self.cfg.mode, "env": self.cfg.env, "attack": self.attack, "eps": self.eps,
+            "episodes": len(stats), "seed": self.cfg.seed, "policy": self.cfg.policy,
+            "mean_return": round(float(returns.mean()), 3), "std_return": round(float(returns.std()), 3),
+            "mean_expert_loss": round(sum(s["sq_loss"] for s in stats) / steps, 6),
+            "max_abs_delta": round(max(s["max_delta"] for s in stats), 6),
+            "steps": steps, "steps_per_s": round(steps / seconds, 1),
+            "record": str(self.record) if self.record else None, "domain": domain,
+        }
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+class StepRecorder:
+    """Collects each step's raw messages by step tag; writes a step once it is complete, in order."""
+
+    def __init__(self, writer: RunLogWriter | None):
+        self.writer = writer
+        self.pending: dict[StepTag, dict[str, bytes]] = {}
+        self.order: list[StepTag] = []
+        self.clock: dict[int, bytes] = {}
+        self.stamp: dict[StepTag, int] = {}
+        self.episode_stats: list[dict] = []
+        self.steps_written = 0
+        self.episode = -1
+
+    def start_episode(self, episode: int) -> None:
+        self.episode, self.episode_done, self.episode_steps = episode, False, 0
+        self.current = {"return": 0.0, "sq_loss": 0.0, "steps": 0, "max_delta": 0.0}
+        # a retried reset repeats the episode from its first step
+        self.order = [t for t in self.order if t.episode != episode]
+        self.pending = {t: m for t, m in self.pending.items() if t.episode != episode}
+
+    def on_message(self, topic: str, raw: bytes) -> None:
+        if topic == P.CLOCK:
+            self.clock[cdr_stamp(raw)] = raw
+        else:
+            stamp, frame_id = cdr_header(raw)
+            tag = StepTag.parse(frame_id)
+            if tag.episode != self.episode:
+                return  # a late duplicate of an earlier (retried) attempt
+            if tag not in self.pending:
+                self.pending[tag] = {}
+                self.order.append(tag)
+            self.pending[tag].setdefault(topic, raw)  # duplicates of a retried first step are identical
+            if topic == P.STATE:
+                self.stamp[tag] = stamp
+        self.flush()
+
+    def complete(self, tag: StepTag) -> bool:
+        msgs = self.pending[tag]
+        return len(msgs) == len(P.STEP_TOPICS) - 1 and self.stamp.get(tag) in self.clock
+
+    def flush(self) -> None:
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import JointState
+
+        while self.order and self.complete(self.order[0]):
+            tag = self.order.pop(0)
+            msgs = self.pending.pop(tag)
+            stamp = self.stamp.pop(tag)
+            msgs[P.CLOCK] = self.clock.pop(stamp)
+            if self.writer is not None:
+                self.writer.write_step(stamp, msgs)
+            reward, terminated, truncated = deserialize_message(msgs[P.REWARD], JointState).position
+            action = np.array(deserialize_message(msgs[P.ACTION], JointState).effort)
+            expert = np.array(deserialize_message(msgs[P.EXPERT_ACTION], JointState).effort)
+            delta = np.array(deserialize_message(msgs[P.PERTURBATION], JointState).position)
+            c = self.current
+            c["return"] += reward
+            c["sq_loss"] += float(((action - expert) ** 2).sum())
+            c["max_delta"] = max(c["max_delta"], float(np.abs(delta).max(initial=0.0)))
+            c["steps"] += 1
+            self.steps_written += 1
+            self.episode_steps += 1
+            if terminated or truncated:
+                c["expert_loss"] = c["sq_loss"] / c["steps"]
+                self.episode_stats.append(c)
+                self.episode_done = True
+
+    def waiting_for(self) -> str:
+        return str(self.order[0]) if self.order else f"{self.episode}/{self.episode_steps}"
+
+    def missing_text(self) -> str:
+        if not self.order:
+            return f"no {P.STATE} from the simulator"
+        have = self.pending[self.order[0]]
+        missing = [t for t in P.STEP_TOPICS if t != P.CLOCK and t not in have]
+        return "waiting for " + ", ".join(missing) if missing else "waiting for /clock"
+
+
+class GraphClient:
+    """The orchestrator's own ROS node: raw subscriptions for the recorder and the reset client."""
+
+    def __init__(self, recorder: StepRecorder):
+        import rclpy
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.experimental import EventsExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+
+        from nodes.common import STEP_QOS
+
+        self._rclpy = rclpy
+        # no rclpy signal handlers: Ctrl-C must reach the orchestrator as KeyboardInterrupt
+        rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("orchestrator")
+        classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock}
+        for topic, msg_type in P.MESSAGE_TYPES.items():
+            self.node.create_subscription(classes[msg_type], topic,
+                                          lambda raw, topic=topic: recorder.on_message(topic, raw),
+                                          STEP_QOS, raw=True)
+        self.reset_client = self.node.create_client(SetParametersAtomically, P.RESET_SERVICE)
+        self._request_type = SetParametersAtomically.Request
+        self.executor = EventsExecutor()
+        self.executor.add_node(self.node)
+
+    def spin(self, timeout: float) -> None:
+        self.executor.spin_once(timeout_sec=timeout)
+
+    def reset(self, seed: int, episode: int, check, timeout: float) -> None:
+        from nodes.common import param_msg
+
+        request = self._request_type()
+        request.parameters = [param_msg("seed", seed), param_msg("episode", episode)]
+        future = self.reset_client.call_async(request)
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            self.spin(0.05)
+            check()
+            if time.monotonic() > deadline:
+                raise GraphError(f"the simulator did not answer {P.RESET_SERVICE} within {timeout:.0f} s")
+        result = future.result().result
+        if not result.successful:
+            raise GraphError(f"the simulator refused to reset: {result.reason}")
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.try_shutdown()

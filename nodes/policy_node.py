@@ -1,0 +1,41 @@
+"""Policy node: answers each ``observation`` with an ``action`` carrying the same header.
+
+Parameters: ``env``, ``policy`` (a bundled name such as ``expert`` or a policy file path). Any node
+that does the same on these two topics can replace it (``run_graph.py policy:=external``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from aril_ros import protocol as P
+from aril_ros.envs import layout_of
+from aril_ros.experts import resolve_policy
+from nodes.common import STEP_QOS, declared, joint_state, main_for
+
+
+class PolicyNode(Node):
+    """Maps ``in_topic`` observations to ``out_topic`` actions with a policy file."""
+
+    def __init__(self, name="policy", in_topic=P.OBSERVATION, out_topic=P.ACTION, default_policy="expert"):
+        super().__init__(name)
+        torch.set_num_threads(1)  # one observation at a time: more threads only contend for the cores
+        env_id = declared(self, "env", "HalfCheetah-v5")
+        self.policy = resolve_policy(declared(self, name, default_policy), env_id)
+        self.names = layout_of(env_id).action_names
+        self.pub = self.create_publisher(JointState, out_topic, STEP_QOS)
+        self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)
+
+    def on_observation(self, msg: JointState) -> None:
+        action = self.policy.act(np.asarray(msg.position, dtype=np.float64))
+        self.pub.publish(joint_state(msg.header, self.names, effort=action))
+
+
+def main(args=None):
+    raise SystemExit(main_for(PolicyNode, args))
+
+
+if __name__ == "__main__":
+    main()

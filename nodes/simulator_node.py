@@ -1,0 +1,113 @@
+"""Simulator node: one MuJoCo env, stepped in lockstep with the policy's actions.
+
+Parameters: ``env`` (gymnasium MuJoCo id), ``horizon`` (steps per episode).
+
+After ``sim/reset`` (seed, episode) it publishes step 0: ``/clock``, ``sim/physics_state`` and
+``sim/state``. It steps only when the ``action`` tagged with the current step arrives (an action for
+any other step is ignored with a warning, so no step is skipped or repeated), publishes
+``sim/reward`` for that step and then the next step's state, until the episode ends.
+``sim/set_state`` replaces the whole physical state at once (the physical attack) and publishes the
+``observation`` of the new state for the policy. A malformed action (wrong length, non-finite) stops
+the node with a clear error. See msgs_doc/README.md.
+"""
+from __future__ import annotations
+
+import numpy as np
+from rcl_interfaces.srv import SetParametersAtomically
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from aril_ros import protocol as P
+from aril_ros.envs import HORIZON, MujocoSim
+from aril_ros.protocol import StepTag, stamp_ns
+
+from nodes.common import STEP_QOS, FatalNodeError, declared, joint_state, main_for, request_params, step_header
+
+
+class SimulatorNode(Node):
+    def __init__(self):
+        super().__init__("simulator")
+        self.sim = MujocoSim(declared(self, "env", "HalfCheetah-v5"), declared(self, "horizon", HORIZON))
+        self.obs_names = list(self.sim.layout.names)
+        self.act_dim = self.sim.layout.act_dim
+        self.tag: StepTag | None = None  # the step waiting for its action; None between episodes
+        self.global_step = 0  # steps completed in this run: the sim clock
+        self.clock_pub = self.create_publisher(Clock, P.CLOCK, STEP_QOS)
+        self.physics_pub = self.create_publisher(JointState, P.PHYSICS, STEP_QOS)
+        self.state_pub = self.create_publisher(JointState, P.STATE, STEP_QOS)
+        self.reward_pub = self.create_publisher(JointState, P.REWARD, STEP_QOS)
+        self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
+        self.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
+        self.create_service(SetParametersAtomically, P.RESET_SERVICE, self.on_reset)
+        self.create_service(SetParametersAtomically, P.SET_STATE_SERVICE, self.on_set_state)
+        self.get_logger().info(f"{self.sim.layout.env_id}: obs {len(self.obs_names)}, act {self.act_dim}")
+
+    def header(self):
+        return step_header(self.tag, stamp_ns(self.global_step, self.sim.dt))
+
+    def publish_step(self) -> None:
+        header = self.header()
+        self.clock_pub.publish(Clock(clock=header.stamp))
+        self.physics_pub.publish(joint_state(header, self.sim.state_names, self.sim.get_state()))
+        self.state_pub.publish(joint_state(header, self.obs_names, self.sim.observe()))
+
+    def on_reset(self, request, response):
+        params = request_params(request)
+        try:
+            seed, episode = int(params["seed"]), int(params["episode"])
+        except (KeyError, TypeError, ValueError):
+            response.result.successful = False
+            response.result.reason = f"reset takes integer parameters seed and episode, got {sorted(params)}"
+            return response
+        self.sim.reset(seed)
+        self.tag = StepTag(episode, 0)
+        self.publish_step()
+        response.result.successful = True
+        return response
+
+    def on_set_state(self, request, response):
+        params = request_params(request)
+        response.result.successful = False
+        if self.tag is None or params.get("tag") != str(self.tag):
+            response.result.reason = f"set_state for step {params.get('tag')!r}, but the current step is {self.tag}"
+            return response
+        try:
+            self.sim.set_state(np.asarray(params.get("state", []), dtype=np.float64))
+        except ValueError as err:
+            response.result.reason = str(err)
+            return response
+        self.observation_pub.publish(joint_state(self.header(), self.obs_names, self.sim.observe()))
+        response.result.successful = True
+        return response
+
+    def on_action(self, msg) -> None:
+        try:
+            tag = StepTag.parse(msg.header.frame_id)
+        except ValueError as err:
+            raise FatalNodeError(f"action with a bad header: {err}") from None
+        if tag != self.tag:
+            self.get_logger().warning(f"ignoring an action for step {tag}; waiting for step {self.tag}")
+            return
+        action = np.asarray(msg.effort, dtype=np.float64)
+        if action.shape != (self.act_dim,):
+            raise FatalNodeError(f"action for step {tag} has {action.size} values, {self.sim.layout.env_id} takes "
+                                 f"{self.act_dim}")
+        if not np.all(np.isfinite(action)):
+            raise FatalNodeError(f"action for step {tag} is not finite: {action.tolist()}")
+        _, reward, terminated, truncated = self.sim.step(action)
+        self.reward_pub.publish(joint_state(self.header(), P.REWARD_NAMES, [reward, terminated, truncated]))
+        self.global_step += 1
+        if terminated or truncated:
+            self.tag = None
+            return
+        self.tag = StepTag(tag.episode, tag.step + 1)
+        self.publish_step()
+
+
+def main(args=None):
+    raise SystemExit(main_for(SimulatorNode, args))
+
+
+if __name__ == "__main__":
+    main()
