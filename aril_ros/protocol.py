@@ -19,6 +19,7 @@ PERTURBATION = "attack/perturbation"  # sensor_msgs/JointState: position = delta
 ACTION = "action"  # sensor_msgs/JointState: effort = the policy's action
 EXPERT_ACTION = "expert/action"  # sensor_msgs/JointState: effort = the expert's action on the true state
 CLOCK = "/clock"  # rosgraph_msgs/Clock: sim time, one message per step
+READY = "graph/ready"  # std_msgs/String, transient local: a node's name once all its endpoints are matched
 RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
 SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
 

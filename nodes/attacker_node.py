@@ -21,7 +21,8 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of, perturbed_state
 from aril_ros.protocol import StepTag
 from aril_ros.rollout import MODES, episode_rng
-from nodes.common import STEP_QOS, FatalNodeError, declared, joint_state, main_for, param_msg
+from nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for, param_msg,
+                          publishers, subscribers)
 
 
 class AttackerNode(Node):
@@ -38,14 +39,20 @@ class AttackerNode(Node):
         self.seed = declared(self, "seed", 0)
         self.rng = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)
-        self.create_subscription(JointState, P.STATE, self.on_state, STEP_QOS)
+        state_sub = self.create_subscription(JointState, P.STATE, self.on_state, STEP_QOS)
+        ready = {"a subscriber on attack/perturbation": subscribers(self.perturbation_pub, 1),
+                 "a publisher on sim/state": publishers(state_sub)}
         if self.mode == "physical":
             self.physics: dict[str, JointState] = {}
             self.states: dict[str, JointState] = {}
-            self.create_subscription(JointState, P.PHYSICS, self.on_physics, STEP_QOS)
+            physics_sub = self.create_subscription(JointState, P.PHYSICS, self.on_physics, STEP_QOS)
             self.set_state = self.create_client(SetParametersAtomically, P.SET_STATE_SERVICE)
+            ready.update({"a publisher on sim/physics_state": publishers(physics_sub),
+                          "the sim/set_state service": self.set_state.service_is_ready})
         else:
             self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
+            ready["2 subscribers on observation (the policy, the recorder)"] = subscribers(self.observation_pub, 2)
+        self.ready = ReadyAnnouncer(self, ready)
         self.get_logger().info(f"{self.mode} attack {self.attack.name} eps={self.attack.eps}")
 
     def perturbation(self, state: JointState) -> tuple[np.ndarray, np.ndarray]:

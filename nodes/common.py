@@ -14,6 +14,7 @@ from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from aril_ros import protocol as P
 from aril_ros.protocol import StepTag
 
 STEP_QOS = QoSProfile(
@@ -22,6 +23,54 @@ STEP_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
     depth=1,
 )
+
+
+# Latched, so the orchestrator hears a node's announcement however late it subscribes.
+READY_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    depth=10,
+)
+
+
+class ReadyAnnouncer:
+    """Publishes the node's name on ``graph/ready`` once every one of its endpoints is matched.
+
+    DDS shows an endpoint in the graph well before (sometimes over a second before) it is matched
+    with its peers, and a step message sent before that is lost for good. Each node therefore checks
+    its own publishers' subscriber counts and subscriptions' publisher counts; the orchestrator
+    starts the first episode only when every node has announced itself.
+    """
+
+    def __init__(self, node: Node, checks: dict):
+        from std_msgs.msg import String
+
+        self.node, self.checks = node, checks
+        self.pub = node.create_publisher(String, P.READY, READY_QOS)
+        self.message = String(data=node.get_name())
+        self.started = node.get_clock().now()
+        self.last_report = 0.0
+        self.timer = node.create_timer(0.02, self.check)
+
+    def check(self) -> None:
+        waiting = [what for what, ok in self.checks.items() if not ok()]
+        if not waiting:
+            self.pub.publish(self.message)
+            self.timer.cancel()
+            return
+        waited = (self.node.get_clock().now() - self.started).nanoseconds / 1e9
+        if waited - self.last_report > 2.0:
+            self.last_report = waited
+            self.node.get_logger().info("waiting for " + ", ".join(waiting))
+
+
+def subscribers(publisher, n: int):
+    return lambda: publisher.get_subscription_count() >= n
+
+
+def publishers(subscription, n: int = 1):
+    return lambda: subscription.get_publisher_count() >= n
 
 
 class FatalNodeError(RuntimeError):

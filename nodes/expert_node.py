@@ -12,7 +12,8 @@ from nodes.policy_node import PolicyNode
 
 class ExpertNode(PolicyNode):
     def __init__(self):
-        super().__init__("expert", in_topic=P.STATE, out_topic=P.EXPERT_ACTION, default_policy="expert")
+        super().__init__("expert", in_topic=P.STATE, out_topic=P.EXPERT_ACTION, default_policy="expert",
+                         out_subscribers=1)  # the recorder
 
 
 def main(args=None):

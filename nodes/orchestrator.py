@@ -142,7 +142,7 @@ class Orchestrator:
         cfg = self.cfg
         common = {"env": cfg.env}
         specs = {
-            "simulator": {**common, "horizon": cfg.horizon},
+            "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
             "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed},
             "expert": {**common, "expert": cfg.expert},
         }
@@ -157,26 +157,15 @@ class Orchestrator:
                 raise GraphError(f"node '{node.name}' exited with code {code}: {node.last_error()} "
                                  f"(full log: {node.log_path})")
 
-    def expected_endpoints(self) -> dict[str, tuple[int, int]]:
-        """(publishers, subscribers) each step topic needs before the first episode starts."""
-        physical = self.cfg.mode == "physical"
-        return {
-            P.STATE: (1, 3), P.PHYSICS: (1, 2 if physical else 1), P.REWARD: (1, 1), P.CLOCK: (1, 1),
-            P.OBSERVATION: (1 if physical else 2, 2), P.PERTURBATION: (1, 1),
-            P.ACTION: (1, 2), P.EXPERT_ACTION: (1, 1),
-        }
-
     def wait_connected(self, ros) -> None:
+        """Until every started node has announced that its endpoints are matched (graph/ready), the
+        recorder hears every step topic, and the reset service answers."""
         deadline = time.monotonic() + self.cfg.connect_timeout
+        expected = {node.name for node in self.nodes}
         while True:
             self.check_nodes()
-            missing = []
-            for topic, (pubs, subs) in self.expected_endpoints().items():
-                name = ros.node.resolve_topic_name(topic)
-                if ros.node.count_publishers(name) < pubs:
-                    missing.append(f"publisher on {name}")
-                if ros.node.count_subscribers(name) < subs:
-                    missing.append(f"subscriber on {name}")
+            missing = [f"node '{name}' not ready" for name in sorted(expected - ros.ready)]
+            missing += [f"publisher on {ros.node.resolve_topic_name(t)}" for t in ros.unfed_topics()]
             if not ros.reset_client.service_is_ready():
                 missing.append(f"service {ros.node.resolve_topic_name(P.RESET_SERVICE)}")
             if not missing:
@@ -184,7 +173,7 @@ class Orchestrator:
             if time.monotonic() > deadline:
                 who = "an external policy node" if self.cfg.policy == "external" else "the graph"
                 raise GraphError(f"{who} did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
-                                 + ", ".join(missing))
+                                 + ", ".join(missing) + f" (node logs: {self.log_dir})")
             ros.spin(0.05)
 
     def run_metadata(self) -> dict:
@@ -241,37 +230,22 @@ class Orchestrator:
         return self.summary(recorder, seconds, domain)
 
     def run_episode(self, ros, recorder: "StepRecorder", episode: int) -> None:
-        tries = 0
-        while True:
-            recorder.start_episode(episode)
-            ros.reset(seed=self.cfg.seed + episode, episode=episode, check=self.check_nodes,
-                      timeout=self.cfg.step_timeout)
-            last_progress, progress = time.monotonic(), recorder.steps_written
-            while not recorder.episode_done:
-                ros.spin(0.05)
-                self.check_nodes()
-                if recorder.steps_written != progress:
-                    last_progress, progress = time.monotonic(), recorder.steps_written
-                    continue
-                stalled = time.monotonic() - last_progress
-                # The first message of a new graph can be lost while DDS endpoints are still being
-                # matched; a reset of the same episode repeats it exactly (same seeds), so retry once.
-                if recorder.episode_steps == 0 and stalled > 2.0 and tries < 1:
-                    tries += 1
-                    self.log(f"[run_graph] episode {episode}: no first step after 2 s, resetting again",
-                             file=sys.stderr)
-                    break
-                if stalled > self.cfg.step_timeout:
-                    raise GraphError(f"step {recorder.waiting_for()} made no progress for "
-                                     f"{self.cfg.step_timeout:.0f} s: {recorder.missing_text()}"
-                                     + (" (is the external policy still running?)" if self.cfg.policy ==
-                                        "external" else ""))
-            else:
-                stats = recorder.episode_stats[-1]
-                self.log(f"episode {episode:3d}  return {stats['return']:9.1f}  expert loss "
-                         f"{stats['expert_loss']:.4f}  steps {stats['steps']:4d}  max|delta| "
-                         f"{stats['max_delta']:.4f}", file=sys.stderr, flush=True)
-                return
+        recorder.start_episode(episode)
+        ros.reset(seed=self.cfg.seed + episode, episode=episode, check=self.check_nodes,
+                  timeout=self.cfg.step_timeout)
+        last_progress, progress = time.monotonic(), recorder.steps_written
+        while not recorder.episode_done:
+            ros.spin(0.05)
+            self.check_nodes()
+            if recorder.steps_written != progress:
+                last_progress, progress = time.monotonic(), recorder.steps_written
+            elif time.monotonic() - last_progress > self.cfg.step_timeout:
+                raise GraphError(f"step {recorder.waiting_for()} made no progress for {self.cfg.step_timeout:.0f} s: "
+                                 f"{recorder.missing_text()}" + (" (is the external policy still running?)"
+                                                                 if self.cfg.policy == "external" else ""))
+        stats = recorder.episode_stats[-1]
+        self.log(f"episode {episode:3d}  return {stats['return']:9.1f}  expert loss {stats['expert_loss']:.4f}  "
+                 f"steps {stats['steps']:4d}  max|delta| {stats['max_delta']:.4f}", file=sys.stderr, flush=True)
 
     def summary(self, recorder: "StepRecorder", seconds: float, domain: int) -> dict:
         stats = recorder.episode_stats
@@ -292,6 +266,11 @@ def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+PRODUCERS = {P.STATE: "simulator", P.PHYSICS: "simulator", P.REWARD: "simulator", P.PERTURBATION: "attacker",
+             P.OBSERVATION: "attacker, or simulator when physical", P.ACTION: "policy",
+             P.EXPERT_ACTION: "expert"}
+
+
 class StepRecorder:
     """Collects each step's raw messages by step tag; writes a step once it is complete, in order."""
 
@@ -308,9 +287,6 @@ class StepRecorder:
     def start_episode(self, episode: int) -> None:
         self.episode, self.episode_done, self.episode_steps = episode, False, 0
         self.current = {"return": 0.0, "sq_loss": 0.0, "steps": 0, "max_delta": 0.0}
-        # a retried reset repeats the episode from its first step
-        self.order = [t for t in self.order if t.episode != episode]
-        self.pending = {t: m for t, m in self.pending.items() if t.episode != episode}
 
     def on_message(self, topic: str, raw: bytes) -> None:
         if topic == P.CLOCK:
@@ -318,12 +294,10 @@ class StepRecorder:
         else:
             stamp, frame_id = cdr_header(raw)
             tag = StepTag.parse(frame_id)
-            if tag.episode != self.episode:
-                return  # a late duplicate of an earlier (retried) attempt
             if tag not in self.pending:
                 self.pending[tag] = {}
                 self.order.append(tag)
-            self.pending[tag].setdefault(topic, raw)  # duplicates of a retried first step are identical
+            self.pending[tag][topic] = raw
             if topic == P.STATE:
                 self.stamp[tag] = stamp
         self.flush()
@@ -366,8 +340,8 @@ class StepRecorder:
         if not self.order:
             return f"no {P.STATE} from the simulator"
         have = self.pending[self.order[0]]
-        missing = [t for t in P.STEP_TOPICS if t != P.CLOCK and t not in have]
-        return "waiting for " + ", ".join(missing) if missing else "waiting for /clock"
+        missing = [f"{t} ({PRODUCERS[t]})" for t in P.STEP_TOPICS if t != P.CLOCK and t not in have]
+        return "waiting for " + ", ".join(missing) if missing else "waiting for /clock (simulator)"
 
 
 class GraphClient:
@@ -380,18 +354,22 @@ class GraphClient:
         from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
 
-        from nodes.common import STEP_QOS
+        from nodes.common import READY_QOS, STEP_QOS
 
         self._rclpy = rclpy
         # no rclpy signal handlers: Ctrl-C must reach the orchestrator as KeyboardInterrupt
         rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("orchestrator")
         classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock}
-        for topic, msg_type in P.MESSAGE_TYPES.items():
-            self.node.create_subscription(classes[msg_type], topic,
-                                          lambda raw, topic=topic: recorder.on_message(topic, raw),
-                                          STEP_QOS, raw=True)
+        self.subscriptions = {
+            topic: self.node.create_subscription(classes[msg_type], topic,
+                                                 lambda raw, topic=topic: recorder.on_message(topic, raw),
+                                                 STEP_QOS, raw=True)
+            for topic, msg_type in P.MESSAGE_TYPES.items()}
+        self.ready: set[str] = set()
+        self.node.create_subscription(String, P.READY, lambda msg: self.ready.add(msg.data), READY_QOS)
         self.reset_client = self.node.create_client(SetParametersAtomically, P.RESET_SERVICE)
         self._request_type = SetParametersAtomically.Request
         self.executor = EventsExecutor()
@@ -399,6 +377,10 @@ class GraphClient:
 
     def spin(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
+
+    def unfed_topics(self) -> list[str]:
+        """Step topics whose publisher is not yet matched with the recorder."""
+        return [topic for topic, sub in self.subscriptions.items() if sub.get_publisher_count() < 1]
 
     def reset(self, seed: int, episode: int, check, timeout: float) -> None:
         from nodes.common import param_msg

@@ -13,20 +13,26 @@ from sensor_msgs.msg import JointState
 from aril_ros import protocol as P
 from aril_ros.envs import layout_of
 from aril_ros.experts import resolve_policy
-from nodes.common import STEP_QOS, declared, joint_state, main_for
+from nodes.common import STEP_QOS, ReadyAnnouncer, declared, joint_state, main_for, publishers, subscribers
 
 
 class PolicyNode(Node):
-    """Maps ``in_topic`` observations to ``out_topic`` actions with a policy file."""
+    """Maps ``in_topic`` observations to ``out_topic`` actions with a policy file.
 
-    def __init__(self, name="policy", in_topic=P.OBSERVATION, out_topic=P.ACTION, default_policy="expert"):
+    ``out_subscribers``: who must listen before the node is ready (the simulator and the recorder).
+    """
+
+    def __init__(self, name="policy", in_topic=P.OBSERVATION, out_topic=P.ACTION, default_policy="expert",
+                 out_subscribers=2):
         super().__init__(name)
         torch.set_num_threads(1)  # one observation at a time: more threads only contend for the cores
         env_id = declared(self, "env", "HalfCheetah-v5")
         self.policy = resolve_policy(declared(self, name, default_policy), env_id)
         self.names = layout_of(env_id).action_names
         self.pub = self.create_publisher(JointState, out_topic, STEP_QOS)
-        self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)
+        sub = self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)
+        self.ready = ReadyAnnouncer(self, {f"a publisher on {in_topic}": publishers(sub),
+                              f"{out_subscribers} subscribers on {out_topic}": subscribers(self.pub, out_subscribers)})
 
     def on_observation(self, msg: JointState) -> None:
         action = self.policy.act(np.asarray(msg.position, dtype=np.float64))

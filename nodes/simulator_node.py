@@ -1,6 +1,7 @@
 """Simulator node: one MuJoCo env, stepped in lockstep with the policy's actions.
 
-Parameters: ``env`` (gymnasium MuJoCo id), ``horizon`` (steps per episode).
+Parameters: ``env`` (gymnasium MuJoCo id), ``horizon`` (steps per episode), ``mode`` (clean |
+sensory | physical: which peers it waits for before announcing itself ready).
 
 After ``sim/reset`` (seed, episode) it publishes step 0: ``/clock``, ``sim/physics_state`` and
 ``sim/state``. It steps only when the ``action`` tagged with the current step arrives (an action for
@@ -22,7 +23,8 @@ from aril_ros import protocol as P
 from aril_ros.envs import HORIZON, MujocoSim
 from aril_ros.protocol import StepTag, stamp_ns
 
-from nodes.common import STEP_QOS, FatalNodeError, declared, joint_state, main_for, request_params, step_header
+from nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for, publishers,
+                          request_params, step_header, subscribers)
 
 
 class SimulatorNode(Node):
@@ -38,9 +40,18 @@ class SimulatorNode(Node):
         self.state_pub = self.create_publisher(JointState, P.STATE, STEP_QOS)
         self.reward_pub = self.create_publisher(JointState, P.REWARD, STEP_QOS)
         self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
-        self.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
+        action_sub = self.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
         self.create_service(SetParametersAtomically, P.RESET_SERVICE, self.on_reset)
         self.create_service(SetParametersAtomically, P.SET_STATE_SERVICE, self.on_set_state)
+        physical = declared(self, "mode", "sensory") == "physical"
+        self.ready = ReadyAnnouncer(self, {  # the attacker, the expert and the recorder listen; the policy answers
+            "3 subscribers on sim/state": subscribers(self.state_pub, 3),
+            "subscribers on sim/physics_state": subscribers(self.physics_pub, 2 if physical else 1),
+            "a subscriber on sim/reward": subscribers(self.reward_pub, 1),
+            "a subscriber on /clock": subscribers(self.clock_pub, 1),
+            "2 subscribers on observation": subscribers(self.observation_pub, 2 if physical else 0),
+            "a publisher on action (the policy)": publishers(action_sub),
+        })
         self.get_logger().info(f"{self.sim.layout.env_id}: obs {len(self.obs_names)}, act {self.act_dim}")
 
     def header(self):

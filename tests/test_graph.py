@@ -1,0 +1,379 @@
+"""Real ROS 2 graphs: separate processes, real DDS, one isolated domain per run."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aril_ros.attacks import make_attack
+from aril_ros.envs import MujocoSim, layout_of
+from aril_ros.mcap_log import RunLogError, read_run, recover
+from aril_ros.policy import load_policy, save_policy
+from aril_ros.rollout import RolloutEngine
+from nodes.orchestrator import allocate_domain
+from tests.conftest import random_policy
+
+ROOT = Path(__file__).resolve().parent.parent
+COMPARED = ("true_obs", "obs", "delta", "action", "expert_action", "reward")
+
+
+def policy_files(tmp_path, env_id):
+    return (save_policy(random_policy(env_id, seed=1), tmp_path / "policy.pt"),
+            save_policy(random_policy(env_id, seed=2), tmp_path / "expert.pt"))
+
+
+def free_domain() -> int:
+    """A domain no other aril_ros run holds; released so run_graph.py (domain:=N) can take it."""
+    domain, lock = allocate_domain("auto")
+    lock.close()
+    return domain
+
+
+def ros_env(domain: int) -> dict:
+    return {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+
+def processes_in_domain(domain: int, besides=()) -> list[int]:
+    """PIDs (but this one and ``besides``) whose environment puts them in ``domain``: none after a run."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) in (os.getpid(), *besides):
+            continue
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if f"ROS_DOMAIN_ID={domain}".encode() in environ:
+            found.append(int(entry.name))
+    return found
+
+
+def run_graph(*args, domain=None, timeout=180, besides=()):
+    domain = free_domain() if domain is None else domain
+    out = subprocess.run([sys.executable, str(ROOT / "run_graph.py"), *args, f"domain:={domain}"],
+                         capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    assert processes_in_domain(domain, besides) == [], "a node outlived its run"
+    return out
+
+
+def summary_of(out) -> dict:
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("mode, env_id", [("clean", "Swimmer-v5"), ("sensory", "HalfCheetah-v5"),
+                                          ("physical", "Ant-v5")])
+def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, tmp_path):
+    policy, expert = policy_files(tmp_path, env_id)
+    log = tmp_path / "run.mcap"
+    attack = "none" if mode == "clean" else "random"
+    summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
+                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
+                                   f"record:={log}"))
+    engine = RolloutEngine(env_id, load_policy(policy), load_policy(expert),
+                           make_attack(attack, layout_of(env_id), 0.1 if attack != "none" else 0), mode,
+                           n_envs=2, horizon=80)
+    traj = engine.rollout(2, seed=4)
+    run = read_run(log)
+    for e in range(2):
+        rows = run.episodes == e
+        assert rows.sum() == traj.length[e]
+        for name in COMPARED:
+            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
+                                          err_msg=f"{name}, episode {e}")
+    assert summary["steps"] == traj.length.sum() == len(run.tags)
+    assert summary["mean_return"] == pytest.approx(traj.returns.mean(), abs=1e-3)
+    assert summary["mean_expert_loss"] == pytest.approx(traj.mean_expert_loss, abs=1e-6)
+    for key in ("mode", "env", "attack", "eps", "episodes", "steps_per_s", "record"):
+        assert key in summary
+    assert run.metadata["env"] == env_id and run.metadata["mode"] == mode
+    assert run.metadata["expert_provenance"] == {"made_by": "tests"}
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """One recorded sensory run, shared by the log tests."""
+    tmp = tmp_path_factory.mktemp("recorded")
+    policy, expert = policy_files(tmp, "HalfCheetah-v5")
+    log = tmp / "sensory.mcap"
+    summary_of(run_graph("mode:=sensory", f"policy:={policy}", f"expert:={expert}", "episodes:=2", "horizon:=40",
+                         f"record:={log}"))
+    return log
+
+
+def test_log_reads_step_by_step_with_rosbags(recorded):
+    from rosbags.highlevel import AnyReader
+
+    ours = read_run(recorded)
+    seen = {}
+    last_time = -1
+    with AnyReader([recorded]) as reader:
+        topics = {c.topic: c for c in reader.connections}
+        assert set(topics) == {"/clock", "/sim/state", "/sim/physics_state", "/sim/reward", "/observation",
+                               "/attack/perturbation", "/action", "/expert/action"}
+        assert topics["/sim/state"].msgtype == "sensor_msgs/msg/JointState"
+        qos = topics["/action"].ext.offered_qos_profiles[0]
+        assert (qos.reliability.name, qos.history.name, qos.durability.name) == ("RELIABLE", "KEEP_ALL", "VOLATILE")
+        for conn, timestamp, raw in reader.messages():
+            assert timestamp >= last_time  # monotonic log times
+            last_time = timestamp
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic != "/clock":
+                seen[(msg.header.frame_id, conn.topic)] = msg
+    for i, tag in enumerate(ours.tags):
+        np.testing.assert_array_equal(seen[(str(tag), "/sim/state")].position, ours.true_obs[i])
+        np.testing.assert_array_equal(seen[(str(tag), "/observation")].position, ours.obs[i])
+        np.testing.assert_array_equal(seen[(str(tag), "/expert/action")].effort, ours.expert_action[i])
+        np.testing.assert_array_equal(seen[(str(tag), "/sim/reward")].position[0], ours.reward[i])
+    assert len(seen) == 7 * len(ours.tags)
+
+
+def test_dataset_loader_and_its_refusals(recorded, tmp_path):
+    from mcap.writer import Writer
+
+    from aril_ros.mcap_log import load_dagger_dataset
+
+    data = load_dagger_dataset([recorded, recorded])
+    run = read_run(recorded)
+    assert len(data) == 2 * len(run.tags)
+    np.testing.assert_array_equal(data.obs[: len(run.tags)], run.obs)
+    np.testing.assert_array_equal(data.expert_action[len(run.tags):], run.expert_action)
+    truncated = tmp_path / "truncated.mcap"
+    truncated.write_bytes(recorded.read_bytes()[:-3000])
+    with pytest.raises(RunLogError, match="truncated|cut short"):
+        load_dagger_dataset([recorded, truncated])
+    foreign = tmp_path / "foreign.mcap"
+    with open(foreign, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="", library="someone else")
+        writer.finish()
+    with pytest.raises(RunLogError, match="not an aril_ros run log"):
+        load_dagger_dataset(foreign)
+    text = tmp_path / "notes.mcap"
+    text.write_text("hello")
+    with pytest.raises(RunLogError, match="not an MCAP file"):
+        load_dagger_dataset(text)
+    with pytest.raises(RunLogError, match="different envs"):
+        load_dagger_dataset(recorded, env_id="Ant-v5")
+
+
+def test_replay_republishes_the_log_byte_for_byte(recorded):
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from nodes.common import STEP_QOS
+
+    domain = free_domain()
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    context = rclpy.Context()
+    rclpy.init(args=[], context=context)
+    node = rclpy.create_node("listener", context=context)
+    got = []
+    node.create_subscription(JointState, "/sim/state", got.append, STEP_QOS, raw=True)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    player = subprocess.Popen([sys.executable, "-m", "aril_ros", "replay", f"file:={recorded}", "rate:=0",
+                               "wait_for_subscribers:=1"], env=ros_env(domain), cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while player.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        for _ in range(20):
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        player.kill()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    assert player.returncode == 0, player.stderr.read()
+    from mcap.reader import make_reader
+
+    with open(recorded, "rb") as f:
+        recorded_states = [m.data for _, c, m in make_reader(f).iter_messages(topics=["/sim/state"])]
+    assert got == recorded_states
+
+
+EXTERNAL_POLICY = r"""
+# A policy node written from the documented topics alone: no aril_ros import.
+import sys
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+behaviour, act_dim = sys.argv[1], int(sys.argv[2])
+rclpy.init()
+node = Node("my_policy")
+qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+pub = node.create_publisher(JointState, "action", qos)
+answered = 0
+
+def on_observation(msg):
+    global answered
+    if behaviour == "silent" or (behaviour == "dies" and answered == 5):
+        if behaviour == "dies":
+            raise SystemExit(3)
+        return
+    action = np.tanh(0.5 * np.asarray(msg.position[:act_dim]))
+    if behaviour == "short":
+        action = action[:1]
+    if behaviour == "nan":
+        action[0] = np.nan
+    pub.publish(JointState(header=msg.header, effort=action.tolist()))
+    answered += 1
+
+node.create_subscription(JointState, "observation", on_observation, qos)
+rclpy.spin(node)
+"""
+
+
+def start_external(behaviour: str, domain: int, act_dim: int = 6):
+    return subprocess.Popen([sys.executable, "-c", EXTERNAL_POLICY, behaviour, str(act_dim)],
+                            env=ros_env(domain), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def run_with_external(behaviour, tmp_path, *args):
+    domain = free_domain()
+    external = start_external(behaviour, domain)
+    try:
+        _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+        return run_graph("mode:=sensory", "policy:=external", f"expert:={expert}", "episodes:=1", "horizon:=50",
+                         "eps:=0.1", f"record:={tmp_path / 'run.mcap'}", "step_timeout:=4", *args, domain=domain,
+                         besides=[external.pid])
+    finally:
+        external.kill()
+        external.wait()
+
+
+def test_an_external_policy_node_is_swapped_in_and_attacked(tmp_path):
+    summary = summary_of(run_with_external("good", tmp_path))
+    run = read_run(tmp_path / "run.mcap")
+    assert summary["steps"] == len(run.tags) == 50 and summary["policy"] == "external"
+    np.testing.assert_array_equal(run.action, np.tanh(0.5 * run.obs[:, :6]))  # it acted on what it saw
+    assert np.abs(run.obs - run.true_obs).max() > 0  # ... which was attacked
+    assert run.metadata["policy_provenance"] == "external"
+
+
+@pytest.mark.parametrize("behaviour, message", [
+    ("short", "node 'simulator' exited with code 1: .*action for step 0/0 has 1 values, HalfCheetah-v5 takes 6"),
+    ("nan", "node 'simulator' exited with code 1: .*action for step 0/0 is not finite"),
+    ("silent", r"step 0/0 made no progress for 4 s: waiting for action \(policy\).*external policy"),
+    ("dies", r"step 0/5 made no progress for 4 s: waiting for action \(policy\).*external policy"),
+])
+def test_bad_policies_stop_the_graph_with_a_clear_error_and_an_intact_log(behaviour, message, tmp_path):
+    out = run_with_external(behaviour, tmp_path)
+    assert out.returncode == 1
+    assert __import__("re").search(message, out.stderr), out.stderr
+    run = read_run(tmp_path / "run.mcap", allow_interrupted=True)  # readable, with the complete steps
+    assert len(run.tags) == (5 if behaviour == "dies" else 0)
+    with pytest.raises(RunLogError, match="interrupted"):
+        read_run(tmp_path / "run.mcap")
+
+
+def test_an_external_policy_that_never_appears_is_named(tmp_path):
+    _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    out = run_graph("policy:=external", f"expert:={expert}", "connect_timeout:=3", "record:=off")
+    assert out.returncode == 1
+    assert "an external policy node did not connect within 3 s" in out.stderr
+    assert "publisher on /action" in out.stderr
+
+
+def test_set_state_validates_its_request(tmp_path):
+    import rclpy
+    from rcl_interfaces.srv import SetParametersAtomically
+    from rclpy.executors import SingleThreadedExecutor
+
+    from nodes.common import param_msg
+
+    domain = free_domain()
+    sim = subprocess.Popen([sys.executable, "-m", "nodes.simulator_node", "--ros-args", "-p", "env:=Swimmer-v5"],
+                           env=ros_env(domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    context = rclpy.Context()
+    rclpy.init(args=[], context=context)
+    node = rclpy.create_node("prober", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+
+    def call(service, **params):
+        client = node.create_client(SetParametersAtomically, service)
+        deadline = time.monotonic() + 20
+        while not client.service_is_ready() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        request = SetParametersAtomically.Request()
+        request.parameters = [param_msg(k, v) for k, v in params.items()]
+        future = client.call_async(request)
+        while not future.done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        return future.result().result
+
+    try:
+        assert call("sim/reset", seed=0, episode=0).successful
+        sim_here = MujocoSim("Swimmer-v5")
+        state_size = sim_here.state_size
+        sim_here.close()
+        too_short = call("sim/set_state", state=[0.0] * 3, tag="0/0")
+        assert not too_short.successful and "state must have" in too_short.reason
+        nan = call("sim/set_state", state=[float("nan")] * state_size, tag="0/0")
+        assert not nan.successful and "non-finite" in nan.reason
+        stale = call("sim/set_state", state=[0.0] * state_size, tag="0/7")
+        assert not stale.successful and "current step is 0/0" in stale.reason
+        bad_reset = call("sim/reset", seed=1)
+        assert not bad_reset.successful and "seed and episode" in bad_reset.reason
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+
+
+def start_long_run(tmp_path, domain):
+    policy, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    log = tmp_path / "long.mcap"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "run_graph.py"), "mode:=physical", f"policy:={policy}",
+                             f"expert:={expert}", "episodes:=50", f"record:={log}", f"domain:={domain}"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while (not log.exists() or log.stat().st_size < 200_000) and time.monotonic() < deadline:
+        time.sleep(0.2)  # the log grows step by step: wait until the run is well under way
+    assert proc.poll() is None, proc.stderr.read()
+    return proc, log
+
+
+def test_ctrl_c_stops_every_node_and_closes_the_log(tmp_path):
+    domain = free_domain()
+    proc, log = start_long_run(tmp_path, domain)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert processes_in_domain(domain) == []
+    run = read_run(log, allow_interrupted=True)
+    assert len(run.tags) > 0 and run.end["interrupted"] is True
+    assert "interrupted" in run.end["reason"]
+
+
+def test_a_killed_run_leaves_its_complete_steps_recoverable(tmp_path):
+    domain = free_domain()
+    proc, log = start_long_run(tmp_path, domain)
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 10
+    while processes_in_domain(domain) and time.monotonic() < deadline:
+        time.sleep(0.1)  # the nodes get SIGTERM from the kernel when their parent dies
+    assert processes_in_domain(domain) == []
+    with pytest.raises(RunLogError, match="cut short|truncated"):
+        read_run(log)
+    steps = recover(log, tmp_path / "recovered.mcap")
+    run = read_run(tmp_path / "recovered.mcap", allow_interrupted=True)
+    assert steps == len(run.tags) > 0
