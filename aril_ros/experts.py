@@ -25,7 +25,7 @@ import torch
 
 from .args import arg
 from .envs import layout_of, make_gym_env
-from .policy import MLPPolicy, PolicyFileError, PolicyMeta, load_policy, save_policy
+from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 BUNDLED_KINDS = ("expert",)
@@ -68,21 +68,9 @@ def git_revision() -> str:
 
 def export_sac_actor(model, env_id: str, provenance: dict) -> MLPPolicy:
     """Copy an SB3 SAC actor (latent_pi: Linear-ReLU-Linear-ReLU, mu: Linear) into an MLPPolicy."""
-    layout = layout_of(env_id)
     actor = model.policy.actor
     hidden = [m.out_features for m in actor.latent_pi if isinstance(m, torch.nn.Linear)]
-    meta = PolicyMeta(
-        env_id=env_id,
-        obs_dim=layout.obs_dim,
-        act_dim=layout.act_dim,
-        action_low=list(layout.action_low),
-        action_high=list(layout.action_high),
-        hidden=hidden,
-        activation="relu",
-        squash="tanh",
-        provenance=provenance,
-    )
-    policy = MLPPolicy(meta)
+    policy = MLPPolicy(meta_for_env(env_id, hidden=hidden, activation="relu", squash="tanh", provenance=provenance))
     linears = [m for m in actor.latent_pi if isinstance(m, torch.nn.Linear)] + [actor.mu]
     with torch.no_grad():
         for ours, theirs in zip([m for m in policy.net if isinstance(m, torch.nn.Linear)], linears):

@@ -30,6 +30,7 @@ from mcap.writer import CompressionType, Writer
 
 from . import protocol as P
 from .protocol import StepTag
+from .rollout import StepArrays
 
 _TIME = "int32 sec\nuint32 nanosec\n"
 SCHEMAS = {
@@ -117,19 +118,13 @@ def _text(value) -> str:
 
 
 @dataclass
-class RunLog:
+class RunLog(StepArrays):
     """A run log as arrays, one row per step in log order."""
 
     metadata: dict
     end: dict
     tags: list[StepTag]
     stamp_ns: np.ndarray
-    true_obs: np.ndarray
-    obs: np.ndarray
-    delta: np.ndarray
-    action: np.ndarray
-    expert_action: np.ndarray
-    reward: np.ndarray
     terminated: np.ndarray
     truncated: np.ndarray
     physics_state: np.ndarray

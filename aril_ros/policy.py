@@ -71,6 +71,15 @@ class PolicyMeta:
             raise PolicyFileError("action bounds do not match act_dim")
 
 
+def meta_for_env(env_id: str, **fields) -> PolicyMeta:
+    """A :class:`PolicyMeta` with the env's sizes and action bounds filled in."""
+    from .envs import layout_of
+
+    layout = layout_of(env_id)
+    return PolicyMeta(env_id=env_id, obs_dim=layout.obs_dim, act_dim=layout.act_dim,
+                      action_low=list(layout.action_low), action_high=list(layout.action_high), **fields)
+
+
 class MLPPolicy(nn.Module):
     """obs -> normalise -> Linear-act-Linear-act-Linear -> squash into the action bounds."""
 

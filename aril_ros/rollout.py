@@ -31,30 +31,35 @@ MODES = ("clean", "sensory", "physical")
 
 
 @dataclass
-class StepBatch:
+class StepArrays:
+    """What every step records, whether run in-process or read back from a graph's log."""
+
+    true_obs: np.ndarray
+    """the true observation, which the expert labels"""
+    obs: np.ndarray
+    """the observation the policy saw"""
+    delta: np.ndarray
+    """the attack's perturbation (observation coordinates)"""
+    action: np.ndarray
+    """the policy's action"""
+    expert_action: np.ndarray
+    """the expert's action on the true observation"""
+    reward: np.ndarray
+
+
+@dataclass
+class StepBatch(StepArrays):
     """One control step of the episodes that are still running (row k is episode ``episodes[k]``)."""
 
     t: int
     episodes: np.ndarray
-    true_obs: np.ndarray
-    obs: np.ndarray
-    delta: np.ndarray
-    action: np.ndarray
-    expert_action: np.ndarray
-    reward: np.ndarray
     done: np.ndarray
 
 
 @dataclass
-class Trajectories:
+class Trajectories(StepArrays):
     """Arrays ``[episode, step, ...]`` padded with zeros past each episode's ``length``."""
 
-    true_obs: np.ndarray
-    obs: np.ndarray
-    delta: np.ndarray
-    action: np.ndarray
-    expert_action: np.ndarray
-    reward: np.ndarray
     length: np.ndarray
     seed: int
 
@@ -139,7 +144,8 @@ class RolloutEngine:
             for row, k in enumerate(running):
                 obs[k], reward[row], terminated, truncated = sims[k].step(action[row])
                 done[row] = terminated or truncated
-            yield StepBatch(t, episode_ids[running], true_obs, seen, delta, action, expert_action, reward, done)
+            yield StepBatch(true_obs=true_obs, obs=seen, delta=delta, action=action, expert_action=expert_action,
+                            reward=reward, t=t, episodes=episode_ids[running], done=done)
             running = running[~done]
             if running.size == 0:
                 return
