@@ -59,10 +59,59 @@ class RandomAttack(Attack):
         return delta
 
 
-ATTACKS: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack)}
+class FGSM(Attack):
+    """White-box fast gradient sign attack on the one-step disagreement with the expert (paper §5).
+
+    ``delta = eps * sign(grad_s ||pi(s) - pi_e(s_true)||^2)`` at ``s = s_true``, on the zero-order
+    entries. With ``steps = k > 1`` it is FGSM^k (iterative FGSM): k steps of ``eps / k``, each
+    projected back onto the ±eps box, keeping per observation the iterate with the largest loss.
+    """
+
+    name = "fgsm"
+
+    def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 1):
+        super().__init__(layout, eps)
+        if victim is None or expert is None:
+            raise ValueError(f"attack {self.name} is white-box: it needs the victim policy and the expert")
+        if steps < 1:
+            raise ValueError(f"FGSM steps must be >= 1, got {steps}")
+        self.victim, self.expert, self.steps = victim, expert, int(steps)
+
+    def loss(self, true_obs: np.ndarray, delta: np.ndarray, label: np.ndarray) -> np.ndarray:
+        return ((self.victim.act(true_obs + delta) - label) ** 2).sum(axis=1)
+
+    def propose(self, true_obs, rngs):
+        label = self.expert.act(true_obs)
+        delta = np.zeros_like(true_obs)
+        best, best_loss = delta, np.full(len(true_obs), -np.inf)
+        for _ in range(self.steps):
+            grad = self.victim.loss_gradient(true_obs + delta, label)
+            delta = self.project(delta + (self.eps / self.steps) * np.sign(grad))
+            if self.steps == 1:
+                return delta
+            loss = self.loss(true_obs, delta, label)
+            better = loss > best_loss
+            best = np.where(better[:, None], delta, best)
+            best_loss = np.where(better, loss, best_loss)
+        return best
 
 
-def make_attack(name: str, layout: ObsLayout, eps: float) -> Attack:
+class FGSMk(FGSM):
+    name = "fgsm_k"
+
+    def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 10):
+        super().__init__(layout, eps, victim, expert, steps)
+
+
+ATTACKS: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk)}
+WHITE_BOX = ("fgsm", "fgsm_k")
+
+
+def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None) -> Attack:
+    """An attack by name; the white-box ones (fgsm, fgsm_k) need the victim and the expert."""
     if name not in ATTACKS:
         raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACKS)}")
+    if name in WHITE_BOX:
+        kwargs = {} if steps is None else {"steps": steps}
+        return ATTACKS[name](layout, eps, victim, expert, **kwargs)
     return ATTACKS[name](layout, eps)

@@ -35,6 +35,7 @@ class EvalConfig:
     mode: str = arg("clean", f"one of {', '.join(MODES)}")
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
     eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
+    k: int = arg(10, "steps of fgsm_k")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     n_envs: int = arg(32, "simulators run side by side (does not change the results)")
@@ -50,7 +51,8 @@ def run_eval(cfg: EvalConfig) -> dict:
     expert = resolve_policy(cfg.expert, cfg.env)
     if cfg.mode == "clean" and attack_name != "none":
         raise ArgumentError(f"mode:=clean runs no attack, got attack:={attack_name}")
-    attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0)
+    attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0, victim=policy,
+                         expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     returns = np.zeros(cfg.episodes)

@@ -71,6 +71,14 @@ class PolicyMeta:
             raise PolicyFileError("action bounds do not match act_dim")
 
 
+def _blocks(rows: np.ndarray) -> tuple[tuple[torch.Tensor, ...], int]:
+    """``rows`` as float32 blocks of BLOCK_ROWS rows (zero-padded), and the number of real rows."""
+    n = rows.shape[0]
+    padded = np.zeros((-(-n // BLOCK_ROWS) * BLOCK_ROWS, rows.shape[1]), dtype=np.float32)
+    padded[:n] = rows
+    return torch.from_numpy(padded).split(BLOCK_ROWS), n
+
+
 def meta_for_env(env_id: str, **fields) -> PolicyMeta:
     """A :class:`PolicyMeta` with the env's sizes and action bounds filled in."""
     from .envs import layout_of
@@ -123,14 +131,21 @@ class MLPPolicy(nn.Module):
 
         Batch-invariant: row i of the result does not depend on the other rows (see BLOCK_ROWS).
         """
-        obs = np.asarray(obs, dtype=np.float32)
-        rows = np.atleast_2d(obs)
-        n = rows.shape[0]
-        padded = np.zeros((-(-n // BLOCK_ROWS) * BLOCK_ROWS, rows.shape[1]), dtype=np.float32)
-        padded[:n] = rows
-        blocks = torch.from_numpy(padded).split(BLOCK_ROWS)
+        obs = np.asarray(obs)
+        blocks, n = _blocks(np.atleast_2d(obs))
         actions = torch.cat([self(block) for block in blocks])[:n].double().numpy()
         return actions[0] if obs.ndim == 1 else actions
+
+    def loss_gradient(self, obs: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """``d/d obs ||pi(obs) - target||^2`` per row (float64), batch-invariant like :meth:`act`."""
+        blocks, n = _blocks(np.atleast_2d(obs))
+        targets, _ = _blocks(np.atleast_2d(target))
+        grads = []
+        for block, target_block in zip(blocks, targets):
+            block = block.clone().requires_grad_(True)
+            loss = ((self(block) - target_block) ** 2).sum()
+            grads.append(torch.autograd.grad(loss, block)[0])
+        return torch.cat(grads)[:n].double().numpy()
 
     def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
         """Raise :class:`PolicyFileError` if this policy was not made for that env."""

@@ -1,7 +1,8 @@
 """Attacker node: perturbs the zero-order state within ±eps, as the mode says.
 
-Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random), ``eps``,
-``seed``. Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
+Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random | fgsm |
+fgsm_k), ``eps``, ``seed``, and for the white-box attacks ``victim`` (the attacked policy: a bundled
+name or a file), ``expert`` and ``k`` (fgsm_k steps). Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
 engine, so both give the same perturbations.
 
 - clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation`` = state + delta.
@@ -12,12 +13,14 @@ engine, so both give the same perturbations.
 from __future__ import annotations
 
 import numpy as np
+import torch
 from rcl_interfaces.srv import SetParametersAtomically
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
-from aril_ros.attacks import make_attack
+from aril_ros.attacks import WHITE_BOX, make_attack
+from aril_ros.experts import resolve_policy
 from aril_ros.envs import layout_of, perturbed_state
 from aril_ros.protocol import StepTag
 from aril_ros.rollout import MODES, episode_rng
@@ -28,6 +31,7 @@ from nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, jo
 class AttackerNode(Node):
     def __init__(self):
         super().__init__("attacker")
+        torch.set_num_threads(1)  # white-box attacks run small networks one observation at a time
         self.layout = layout_of(declared(self, "env", "HalfCheetah-v5"))
         self.mode = declared(self, "mode", "sensory")
         if self.mode not in MODES:
@@ -35,7 +39,15 @@ class AttackerNode(Node):
         attack = declared(self, "attack", "none" if self.mode == "clean" else "random")
         if self.mode == "clean" and attack != "none":
             raise ValueError(f"mode clean runs no attack, got attack {attack!r}")
-        self.attack = make_attack(attack, self.layout, declared(self, "eps", 0.0) if attack != "none" else 0.0)
+        victim_name, expert_name = declared(self, "victim", ""), declared(self, "expert", "expert")
+        white_box = attack in WHITE_BOX
+        if white_box and not victim_name:
+            raise ValueError(f"attack {attack} is white-box: set the victim parameter to the attacked policy")
+        self.attack = make_attack(
+            attack, self.layout, declared(self, "eps", 0.0) if attack != "none" else 0.0,
+            victim=resolve_policy(victim_name, self.layout.env_id) if white_box else None,
+            expert=resolve_policy(expert_name, self.layout.env_id) if white_box else None,
+            steps=declared(self, "k", 10) if attack == "fgsm_k" else None)
         self.seed = declared(self, "seed", 0)
         self.rng = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)

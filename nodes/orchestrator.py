@@ -27,7 +27,7 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.args import arg
-from aril_ros.attacks import ATTACKS
+from aril_ros.attacks import ATTACKS, WHITE_BOX
 from aril_ros.envs import layout_of
 from aril_ros.experts import git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
@@ -47,6 +47,7 @@ class GraphConfig:
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
     eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
+    k: int = arg(10, "steps of fgsm_k")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     policy: str = arg("expert", "a bundled name (expert), a policy file, or external (start none, wait for one)")
@@ -127,6 +128,9 @@ class Orchestrator:
             raise GraphError(f"mode:=clean runs no attack, got attack:={self.attack}")
         if self.attack not in ATTACKS:
             raise GraphError(f"attack:= must be one of {', '.join(ATTACKS)}, got {self.attack!r}")
+        if self.attack in WHITE_BOX and cfg.policy == "external":
+            raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
+                             "policy can be attacked with attack:=random")
         self.eps = cfg.eps if self.attack != "none" else 0.0
         self.layout = layout_of(cfg.env)
         # load both now: a bad file is reported before any process starts
@@ -143,7 +147,9 @@ class Orchestrator:
         common = {"env": cfg.env}
         specs = {
             "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
-            "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed},
+            "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
+                         "k": cfg.k, "expert": cfg.expert,
+                         **({"victim": cfg.policy} if self.attack in WHITE_BOX else {})},
             "expert": {**common, "expert": cfg.expert},
         }
         if cfg.policy != "external":

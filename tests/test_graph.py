@@ -68,17 +68,20 @@ def summary_of(out) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("mode, env_id", [("clean", "Swimmer-v5"), ("sensory", "HalfCheetah-v5"),
-                                          ("physical", "Ant-v5")])
-def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, tmp_path):
+@pytest.mark.parametrize("mode, env_id, attack", [("clean", "Swimmer-v5", "none"),
+                                                  ("sensory", "HalfCheetah-v5", "random"),
+                                                  ("physical", "Ant-v5", "random"),
+                                                  ("physical", "HalfCheetah-v5", "fgsm_k")])
+def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp_path):
     policy, expert = policy_files(tmp_path, env_id)
     log = tmp_path / "run.mcap"
-    attack = "none" if mode == "clean" else "random"
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
-                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
+                                   f"attack:={attack}", "eps:=0.1", "k:=3", "episodes:=2", "horizon:=80", "seed:=4",
                                    f"record:={log}"))
-    engine = RolloutEngine(env_id, load_policy(policy), load_policy(expert),
-                           make_attack(attack, layout_of(env_id), 0.1 if attack != "none" else 0), mode,
+    victim = load_policy(policy)
+    engine = RolloutEngine(env_id, victim, load_policy(expert),
+                           make_attack(attack, layout_of(env_id), 0.1 if attack != "none" else 0, victim=victim,
+                                       expert=load_policy(expert), steps=3 if attack == "fgsm_k" else None), mode,
                            n_envs=2, horizon=80)
     traj = engine.rollout(2, seed=4)
     run = read_run(log)

@@ -9,9 +9,10 @@ H = 60  # short episodes keep the suite fast; the engine is the same at 1000
 
 
 def engine(env_id, make_policy, mode="sensory", attack="random", eps=0.1, n_envs=3, horizon=H):
+    policy, expert = make_policy(env_id, seed=1), make_policy(env_id, seed=2)
     return RolloutEngine(
-        env_id, make_policy(env_id, seed=1), make_policy(env_id, seed=2),
-        make_attack(attack, layout_of(env_id), eps), mode, n_envs=n_envs, horizon=horizon,
+        env_id, policy, expert, make_attack(attack, layout_of(env_id), eps, victim=policy, expert=expert), mode,
+        n_envs=n_envs, horizon=horizon,
     )
 
 
@@ -29,19 +30,21 @@ def test_same_seed_gives_identical_arrays(mode, make_policy):
     assert not np.array_equal(a.true_obs, c.true_obs)
 
 
+@pytest.mark.parametrize("attack", ["random", "fgsm_k"])
 @pytest.mark.parametrize("mode", ["sensory", "physical"])
-def test_results_do_not_depend_on_how_many_envs_run_side_by_side(mode, make_policy):
-    one = engine("Swimmer-v5", make_policy, mode, n_envs=1).rollout(5, seed=0)
-    many = engine("Swimmer-v5", make_policy, mode, n_envs=4).rollout(5, seed=0)
+def test_results_do_not_depend_on_how_many_envs_run_side_by_side(mode, attack, make_policy):
+    one = engine("Swimmer-v5", make_policy, mode, attack, n_envs=1).rollout(5, seed=0)
+    many = engine("Swimmer-v5", make_policy, mode, attack, n_envs=4).rollout(5, seed=0)
     for name in FIELDS:
         np.testing.assert_array_equal(getattr(one, name), getattr(many, name), err_msg=name)
 
 
+@pytest.mark.parametrize("attack", ["random", "fgsm", "fgsm_k"])
 @pytest.mark.parametrize("mode", ["sensory", "physical"])
 @pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Ant-v5", "Swimmer-v5"])
-def test_perturbation_bounds(env_id, mode, make_policy):
+def test_perturbation_bounds(env_id, mode, attack, make_policy):
     eps = 0.07
-    traj = engine(env_id, make_policy, mode, eps=eps, horizon=30).rollout(2, seed=0)
+    traj = engine(env_id, make_policy, mode, attack, eps=eps, horizon=30).rollout(2, seed=0)
     mask = layout_of(env_id).zero_order_mask
     steps = traj.step_mask
     delta = traj.delta[steps]

@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+
+from aril_ros.attacks import FGSM, make_attack
+from aril_ros.envs import MujocoSim, layout_of
+
+
+def true_states(env_id, n=64, seed=0):
+    """Observations from real states: reset with different seeds and random actions."""
+    sim = MujocoSim(env_id)
+    rng = np.random.default_rng(seed)
+    states = []
+    for i in range(n):
+        sim.reset(seed=seed + i)
+        for _ in range(int(rng.integers(0, 30))):
+            sim.step(rng.uniform(-1, 1, sim.layout.act_dim))
+        states.append(sim.observe())
+    sim.close()
+    return np.array(states)
+
+
+@pytest.fixture
+def victim_expert(make_policy):
+    return make_policy("HalfCheetah-v5", seed=1, hidden=(64, 64)), make_policy("HalfCheetah-v5", seed=2)
+
+
+def one_step_loss(victim, expert, obs, delta):
+    return ((victim.act(obs + delta) - expert.act(obs)) ** 2).sum(axis=1)
+
+
+def test_fgsm_sign_direction_increases_the_one_step_loss(victim_expert):
+    victim, expert = victim_expert
+    obs = true_states("HalfCheetah-v5")
+    delta = make_attack("fgsm", layout_of("HalfCheetah-v5"), 0.01, victim, expert).perturb(obs, [None] * len(obs))
+    before = one_step_loss(victim, expert, obs, 0 * delta)
+    after = one_step_loss(victim, expert, obs, delta)
+    assert (after > before).mean() > 0.95
+    flipped = one_step_loss(victim, expert, obs, -delta)  # the opposite sign lowers it instead
+    assert (after > flipped).mean() > 0.95
+
+
+def test_fgsm_k_finds_a_larger_loss_than_fgsm(victim_expert):
+    victim, expert = victim_expert
+    obs = true_states("HalfCheetah-v5", seed=100)
+    layout = layout_of("HalfCheetah-v5")
+    fgsm = make_attack("fgsm", layout, 0.2, victim, expert).perturb(obs, [None] * len(obs))
+    fgsm_k = make_attack("fgsm_k", layout, 0.2, victim, expert, steps=10).perturb(obs, [None] * len(obs))
+    assert np.all(np.abs(fgsm_k) <= 0.2)
+    assert one_step_loss(victim, expert, obs, fgsm_k).mean() >= one_step_loss(victim, expert, obs, fgsm).mean()
+
+
+def test_fgsm_is_white_box_and_its_gradient_batch_invariant(victim_expert):
+    victim, expert = victim_expert
+    layout = layout_of("HalfCheetah-v5")
+    with pytest.raises(ValueError, match="white-box"):
+        make_attack("fgsm", layout, 0.1)
+    with pytest.raises(ValueError, match="steps must be"):
+        FGSM(layout, 0.1, victim, expert, steps=0)
+    obs = true_states("HalfCheetah-v5", n=70)
+    label = expert.act(obs)
+    whole = victim.loss_gradient(obs, label)
+    np.testing.assert_array_equal(whole[5], victim.loss_gradient(obs[5:6], label[5:6])[0])
+    np.testing.assert_array_equal(whole[:7], victim.loss_gradient(obs[:7], label[:7]))
