@@ -1,10 +1,11 @@
-"""Expert training (stable-baselines3 SAC) and the bundled policy files.
+"""Expert training (stable-baselines3 SAC or PPO) and the bundled policy files.
 
-Experts are trained with stable-baselines3's SAC and the rl-baselines3-zoo MuJoCo settings
-(``learning_starts=10000``, two hidden layers of 256, ``gamma=0.9999`` for Swimmer). The SAC actor
-is exported into the aril_ros policy format (see :mod:`aril_ros.policy`): its deterministic action
-``tanh(mu(s))`` scaled into the action bounds is exactly what :class:`MLPPolicy` computes, so the
-exported file needs neither SB3 nor the training code. During training the exported actor is
+Experts are trained with stable-baselines3 and the rl-baselines3-zoo MuJoCo settings: SAC
+(``learning_starts=10000``, two hidden layers of 256) or PPO (two hidden layers of 64, observation
+and reward normalisation), ``gamma=0.9999`` for Swimmer. The actor is exported into the aril_ros
+policy format (see :mod:`aril_ros.policy`): SAC's deterministic action ``tanh(mu(s))`` scaled into
+the action bounds, or PPO's clipped mean with the normaliser's statistics, is exactly what
+:class:`MLPPolicy` computes, so the exported file needs neither SB3 nor the training code. During training the exported actor is
 evaluated on the rollout engine every ``eval_every`` steps and the best one is kept.
 
 Bundled files live in ``aril_ros/data/<kind>/<env_id>.pt``; a policy argument that is a bundled
@@ -30,9 +31,13 @@ from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_
 DATA_DIR = Path(__file__).resolve().parent / "data"
 BUNDLED_KINDS = ("expert",)
 
-# rl-baselines3-zoo's tuned SAC settings for the MuJoCo envs (hyperparams/sac.yml).
-SAC_DEFAULTS = dict(learning_starts=10_000, batch_size=256, learning_rate=3e-4, gamma=0.99, tau=0.005)
-SAC_PER_ENV = {"Swimmer-v5": dict(gamma=0.9999)}
+# rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
+HYPERPARAMETERS = {
+    "sac": (dict(learning_starts=10_000, batch_size=256, learning_rate=3e-4, gamma=0.99, tau=0.005),
+            {"Swimmer-v5": dict(gamma=0.9999)}),
+    "ppo": (dict(n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, gamma=0.99),  # + VecNormalize
+            {"Swimmer-v5": dict(gamma=0.9999)}),
+}
 
 
 def bundled_path(kind: str, env_id: str) -> Path:
@@ -66,17 +71,36 @@ def git_revision() -> str:
         return "unknown"
 
 
-def export_sac_actor(model, env_id: str, provenance: dict) -> MLPPolicy:
-    """Copy an SB3 SAC actor (latent_pi: Linear-ReLU-Linear-ReLU, mu: Linear) into an MLPPolicy."""
-    actor = model.policy.actor
-    hidden = [m.out_features for m in actor.latent_pi if isinstance(m, torch.nn.Linear)]
-    policy = MLPPolicy(meta_for_env(env_id, hidden=hidden, activation="relu", squash="tanh", provenance=provenance))
-    linears = [m for m in actor.latent_pi if isinstance(m, torch.nn.Linear)] + [actor.mu]
+def _linears(module) -> list[torch.nn.Linear]:
+    return [m for m in module if isinstance(m, torch.nn.Linear)]
+
+
+def _copy_into(meta, linears) -> MLPPolicy:
+    policy = MLPPolicy(meta)
     with torch.no_grad():
-        for ours, theirs in zip([m for m in policy.net if isinstance(m, torch.nn.Linear)], linears):
+        for ours, theirs in zip(_linears(policy.net), linears):
             ours.weight.copy_(theirs.weight)
             ours.bias.copy_(theirs.bias)
     return policy.eval()
+
+
+def export_sac_actor(model, env_id: str, provenance: dict) -> MLPPolicy:
+    """An SB3 SAC actor (latent_pi: Linear-ReLU-Linear-ReLU, mu: Linear; tanh into the bounds)."""
+    hidden = _linears(model.policy.actor.latent_pi)
+    meta = meta_for_env(env_id, hidden=[m.out_features for m in hidden], activation="relu", squash="tanh",
+                        provenance=provenance)
+    return _copy_into(meta, hidden + [model.policy.actor.mu])
+
+
+def export_ppo_actor(model, normalizer, env_id: str, provenance: dict) -> MLPPolicy:
+    """An SB3 PPO actor (policy_net: Linear-Tanh-Linear-Tanh, action_net: Linear; clipped to the
+    bounds) with its VecNormalize observation statistics folded into the policy file."""
+    hidden = _linears(model.policy.mlp_extractor.policy_net)
+    rms = normalizer.obs_rms
+    meta = meta_for_env(env_id, hidden=[m.out_features for m in hidden], activation="tanh", squash="clip",
+                        obs_mean=rms.mean.tolist(), obs_std=np.sqrt(rms.var + normalizer.epsilon).tolist(),
+                        obs_clip=float(normalizer.clip_obs), provenance=provenance)
+    return _copy_into(meta, hidden + [model.policy.action_net])
 
 
 @dataclass
@@ -84,8 +108,9 @@ class ExpertConfig:
     """Arguments of ``aril train-expert``."""
 
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
-    steps: int = arg(300_000, "environment steps of SAC training")
-    seed: int = arg(0, "seed of SAC and of its env")
+    algo: str = arg("sac", "sac (off-policy, sample-efficient) or ppo (on-policy, cheap per step)")
+    steps: int = arg(300_000, "environment steps of training")
+    seed: int = arg(0, "seed of the algorithm and of its env")
     eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
     eval_episodes: int = arg(5, "deterministic episodes per evaluation (env seeds 10000...)")
     out: str = arg("", "where to write the expert (default: the bundled aril_ros/data/expert/<env>.pt)")
@@ -93,27 +118,37 @@ class ExpertConfig:
 
 
 def train_expert(cfg: ExpertConfig, log=print) -> Path:
-    """Train SAC on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path."""
-    from stable_baselines3 import SAC
+    """Train on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path."""
+    from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from .rollout import RolloutEngine
 
+    if cfg.algo not in HYPERPARAMETERS:
+        raise ValueError(f"algo:= must be one of {', '.join(HYPERPARAMETERS)}, got {cfg.algo!r}")
     torch.set_num_threads(cfg.threads)
     layout_of(cfg.env)  # fail fast on ids that are not MuJoCo envs
     out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
-    hyper = {**SAC_DEFAULTS, **SAC_PER_ENV.get(cfg.env, {})}
+    defaults, per_env = HYPERPARAMETERS[cfg.algo]
+    hyper = {**defaults, **per_env.get(cfg.env, {})}
     command = "aril train-expert " + " ".join(
         f"{k}:={shlex.quote(str(v))}" for k, v in vars(cfg).items() if k != "out" or v
     )
-    env = make_gym_env(cfg.env)
-    model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+    if cfg.algo == "sac":
+        env = make_gym_env(cfg.env)
+        model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+        export = lambda provenance: export_sac_actor(model, cfg.env, provenance)  # noqa: E731
+    else:
+        env = VecNormalize(DummyVecEnv([lambda: make_gym_env(cfg.env)]), gamma=hyper["gamma"])
+        model = PPO("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+        export = lambda provenance: export_ppo_actor(model, env, cfg.env, provenance)  # noqa: E731
     started = time.time()
     best = {"mean_return": -np.inf}
 
     def evaluate(step: int) -> None:
         provenance = {
-            "algorithm": "stable-baselines3 SAC",
+            "algorithm": f"stable-baselines3 {cfg.algo.upper()}",
             "hyperparameters": hyper,
             "command": command,
             "steps": step,
@@ -123,7 +158,7 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "torch": torch.__version__,
         }
-        policy = export_sac_actor(model, cfg.env, provenance)
+        policy = export(provenance)
         engine = RolloutEngine(cfg.env, policy, policy, n_envs=cfg.eval_episodes)
         returns = engine.rollout(cfg.eval_episodes, seed=10_000).returns
         engine.close()

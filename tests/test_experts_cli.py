@@ -27,6 +27,22 @@ def test_exported_sac_actor_acts_exactly_like_sb3():
     env.close()
 
 
+def test_exported_ppo_actor_acts_exactly_like_sb3():
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from aril_ros.experts import export_ppo_actor
+
+    env = VecNormalize(DummyVecEnv([lambda: make_gym_env("Swimmer-v5")]))
+    model = PPO("MlpPolicy", env, seed=0, device="cpu", n_steps=64, batch_size=32, n_epochs=1)
+    model.learn(128)  # one update, and normalisation statistics that are not the initial ones
+    policy = export_ppo_actor(model, env, "Swimmer-v5", {"test": True})
+    raw = np.random.default_rng(0).normal(scale=2, size=(20, 8))
+    theirs, _ = model.predict(env.normalize_obs(raw), deterministic=True)
+    np.testing.assert_allclose(policy.act(raw), theirs, atol=1e-5)
+    assert policy.meta.squash == "clip" and policy.meta.obs_clip == 10.0
+
+
 @pytest.mark.parametrize("env_id", PAPER_ENVS)
 def test_bundled_experts_load_with_provenance(env_id):
     path = bundled_path("expert", env_id)
