@@ -100,15 +100,30 @@ def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp
     assert run.metadata["expert_provenance"] == {"made_by": "tests"}
 
 
+RECORDED_RUN = ("mode:=sensory", "episodes:=2", "horizon:=40")
+
+
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """One recorded sensory run, shared by the log tests."""
+def recorded_files(tmp_path_factory):
+    """One recorded sensory run, shared by the log tests: (log, policy file, expert file, summary)."""
     tmp = tmp_path_factory.mktemp("recorded")
     policy, expert = policy_files(tmp, "HalfCheetah-v5")
     log = tmp / "sensory.mcap"
-    summary_of(run_graph("mode:=sensory", f"policy:={policy}", f"expert:={expert}", "episodes:=2", "horizon:=40",
-                         f"record:={log}"))
-    return log
+    summary = summary_of(run_graph(*RECORDED_RUN, f"policy:={policy}", f"expert:={expert}", f"record:={log}"))
+    return log, policy, expert, summary
+
+
+@pytest.fixture
+def recorded(recorded_files):
+    return recorded_files[0]
+
+
+def test_recording_does_not_change_the_run(recorded_files):
+    _, policy, expert, with_log = recorded_files
+    without = summary_of(run_graph(*RECORDED_RUN, f"policy:={policy}", f"expert:={expert}", "record:=off"))
+    assert without["record"] is None
+    for key in ("mean_return", "std_return", "mean_expert_loss", "max_abs_delta", "steps"):
+        assert without[key] == with_log[key], key
 
 
 def test_log_reads_step_by_step_with_rosbags(recorded):
