@@ -104,13 +104,25 @@ class FGSMk(FGSM):
 
 
 ATTACKS: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk)}
+ATTACK_NAMES = (*ATTACKS, "aril_a")
 WHITE_BOX = ("fgsm", "fgsm_k")
 
 
-def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None) -> Attack:
-    """An attack by name; the white-box ones (fgsm, fgsm_k) need the victim and the expert."""
-    if name not in ATTACKS:
-        raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACKS)}")
+def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
+                adversary: str | None = None, mode: str | None = None) -> Attack:
+    """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a
+    needs an adversary file (its eps is the one it was trained with)."""
+    if name not in ATTACK_NAMES:
+        raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACK_NAMES)}")
+    if name == "aril_a":
+        from .adversary import LearnedAttack, load_adversary  # the adversary module builds on this one
+
+        if not adversary:
+            raise ValueError("attack aril_a needs an adversary file (attack_file:=, from aril train-adversary)")
+        net = load_adversary(adversary, layout.env_id, mode)
+        if eps and abs(eps - net.eps) > 1e-12:
+            raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps}")
+        return LearnedAttack(layout, net)
     if name in WHITE_BOX:
         kwargs = {} if steps is None else {"steps": steps}
         return ATTACKS[name](layout, eps, victim, expert, **kwargs)

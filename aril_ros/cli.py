@@ -17,7 +17,8 @@ import numpy as np
 import torch
 
 from .args import ArgumentError, arg, parse_args, usage
-from .attacks import ATTACKS, make_attack
+from .adversary import AdversaryConfig, train_adversary
+from .attacks import ATTACK_NAMES, make_attack
 from .envs import EnvLayoutError, layout_of
 from .experts import ExpertConfig, resolve_policy, train_expert
 from .mcap_log import RunLogError, recover
@@ -33,9 +34,10 @@ class EvalConfig:
     policy: str = arg("expert", "policy to evaluate: a bundled name (expert) or a policy file path")
     expert: str = arg("expert", "expert that labels the true states: a bundled name or a file path")
     mode: str = arg("clean", f"one of {', '.join(MODES)}")
-    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
+    attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
     eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
     k: int = arg(10, "steps of fgsm_k")
+    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     n_envs: int = arg(32, "simulators run side by side (does not change the results)")
@@ -52,7 +54,8 @@ def run_eval(cfg: EvalConfig) -> dict:
     if cfg.mode == "clean" and attack_name != "none":
         raise ArgumentError(f"mode:=clean runs no attack, got attack:={attack_name}")
     attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0, victim=policy,
-                         expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None)
+                         expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,
+                         adversary=cfg.attack_file, mode=cfg.mode)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     returns = np.zeros(cfg.episodes)
@@ -116,6 +119,8 @@ def _replay_config():
 COMMANDS = {
     "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
     "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
+    "train-adversary": (AdversaryConfig, train_adversary,
+                        "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
     "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
     "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }

@@ -26,7 +26,6 @@ import numpy as np
 import torch
 from torch import nn
 
-FORMAT = "aril_ros.policy"
 VERSION = 1
 _ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
 _SQUASHES = ("tanh", "clip")
@@ -157,41 +156,55 @@ class MLPPolicy(nn.Module):
             )
 
 
-def save_policy(policy: MLPPolicy, path: str | Path) -> Path:
+def save_weights(module: nn.Module, meta: dict, path: str | Path, kind: str = "policy") -> Path:
+    """Write ``{format: aril_ros.<kind>, version, meta: JSON, state_dict}`` atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     blob = {
-        "format": FORMAT,
+        "format": f"aril_ros.{kind}",
         "version": VERSION,
-        "meta": json.dumps(asdict(policy.meta), sort_keys=True),
-        "state_dict": {k: v.detach().clone() for k, v in policy.state_dict().items()},
+        "meta": json.dumps(meta, sort_keys=True),
+        "state_dict": {k: v.detach().clone() for k, v in module.state_dict().items()},
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(blob, tmp)
-    tmp.replace(path)  # never leave a half-written policy behind
+    tmp.replace(path)  # never leave a half-written file behind
     return path
+
+
+def load_weights(path: str | Path, kind: str = "policy") -> tuple[dict, dict]:
+    """``(meta, state_dict)`` of a file written by :func:`save_weights`, or a clear PolicyFileError."""
+    path = Path(path)
+    if not path.is_file():
+        raise PolicyFileError(f"{path}: no such {kind} file")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a damaged zip or pickle
+        raise PolicyFileError(f"{path}: not a readable {kind} file ({type(err).__name__}: {err})") from None
+    if not isinstance(blob, dict) or blob.get("format") != f"aril_ros.{kind}":
+        found = blob.get("format") if isinstance(blob, dict) else None
+        raise PolicyFileError(f"{path}: not an aril_ros {kind} file (format tag {found!r})")
+    if blob.get("version") != VERSION:
+        raise PolicyFileError(f"{path}: {kind} format version {blob.get('version')}, this aril_ros reads {VERSION}")
+    try:
+        return json.loads(blob["meta"]), blob["state_dict"]
+    except (KeyError, TypeError, ValueError) as err:
+        raise PolicyFileError(f"{path}: corrupt {kind} file ({type(err).__name__}: {err})") from None
+
+
+def save_policy(policy: MLPPolicy, path: str | Path) -> Path:
+    return save_weights(policy, asdict(policy.meta), path, "policy")
 
 
 def load_policy(path: str | Path, env_id: str | None = None) -> MLPPolicy:
     """Load a policy file; with ``env_id``, also check it was made for that env."""
-    path = Path(path)
-    if not path.is_file():
-        raise PolicyFileError(f"{path}: no such policy file")
+    meta, state_dict = load_weights(path, "policy")
     try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a damaged zip or pickle
-        raise PolicyFileError(f"{path}: not a readable policy file ({type(err).__name__}: {err})") from None
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
-        raise PolicyFileError(f"{path}: not an aril_ros policy file (format tag missing)")
-    if blob.get("version") != VERSION:
-        raise PolicyFileError(f"{path}: policy format version {blob.get('version')}, this aril_ros reads {VERSION}")
-    try:
-        meta = PolicyMeta(**json.loads(blob["meta"]))
-        policy = MLPPolicy(meta)
-        policy.load_state_dict(blob["state_dict"])
+        policy = MLPPolicy(PolicyMeta(**meta))
+        policy.load_state_dict(state_dict)
     except PolicyFileError as err:
         raise PolicyFileError(f"{path}: {err}") from None
-    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+    except (TypeError, ValueError, RuntimeError) as err:
         raise PolicyFileError(f"{path}: corrupt policy file ({type(err).__name__}: {err})") from None
     policy.eval()
     if env_id is not None:

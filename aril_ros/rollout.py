@@ -84,6 +84,14 @@ class Trajectories(StepArrays):
         return float(sq.sum() / self.length.sum())
 
 
+def apply_perturbation(mode: str, sims: list[MujocoSim], true_obs: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """What the policy sees: ``s + delta`` (sensory, clean) or, physical, the observation of each
+    simulator after its real state has been moved by ``delta``."""
+    if mode == "physical":
+        return np.stack([sim.perturb(d) for sim, d in zip(sims, delta)])
+    return true_obs + delta
+
+
 def episode_rng(seed: int, episode: int) -> np.random.Generator:
     return np.random.default_rng([seed, episode])
 
@@ -133,10 +141,7 @@ class RolloutEngine:
         for t in range(self.horizon):
             true_obs = obs[running]
             delta = self.attack.perturb(true_obs, [rngs[k] for k in running])
-            if self.mode == "physical":
-                seen = np.stack([sims[k].perturb(d) for k, d in zip(running, delta)])
-            else:
-                seen = true_obs + delta
+            seen = apply_perturbation(self.mode, [sims[k] for k in running], true_obs, delta)
             action = self.policy.act(seen)
             expert_action = self.expert.act(true_obs)
             reward = np.empty(len(running))

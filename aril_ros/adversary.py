@@ -1,0 +1,254 @@
+"""ARIL-A, the learned adversary (paper §4.2), trained by PPO on vectorised in-process simulators.
+
+The adversary f is a Gaussian over perturbations of the zero-order entries: mean
+``eps * tanh(net(s))``, a state-independent std initialised to ``0.1 * eps``, samples clipped to
+``±eps``. Its input is the *true* observation ``s``. Its reward at step h is the victim's
+disagreement with the expert on the true state, ``||a_h - pi_e(s_h)||^2``, where ``a_h`` is the
+victim's action on what the attack made it see (sensory) or on the moved state (physical); PPO
+maximises the discounted sum. It never needs the victim's gradients: it only queries actions, so
+any black-box policy can be attacked.
+
+Adversary files (``*.pt``) use the policy-file container (:func:`aril_ros.policy.save_weights`) with
+format ``aril_ros.adversary`` and a JSON meta: env id, mode, eps, sizes, hidden width, observation
+normalisation and provenance (victim, expert, training steps, seconds, seed, command).
+
+The training loop reads top to bottom (cleanrl style): collect ``rollout`` steps on ``n_envs``
+simulators, compute GAE advantages, run ``epochs`` of clipped PPO updates, repeat.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import shlex
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .args import arg
+from .attacks import Attack
+from .envs import MujocoSim, ObsLayout, layout_of
+from .experts import git_revision, resolve_policy
+from .policy import PolicyFileError, _blocks, load_weights, save_weights
+from .rollout import MODES, apply_perturbation
+
+
+def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
+                         nn.Linear(hidden, n_out))
+
+
+class AdversaryNet(nn.Module):
+    """Mean ``eps * tanh(net(s))`` over the zero-order entries, learnable log-std, and a value head."""
+
+    def __init__(self, meta: dict):
+        super().__init__()
+        self.meta = meta
+        obs_dim, n_out, hidden = meta["obs_dim"], meta["n_position"], meta["hidden"]
+        self.eps = float(meta["eps"])
+        self.mean_net = _mlp(obs_dim, hidden, n_out)
+        self.value_net = _mlp(obs_dim, hidden, 1)
+        self.log_std = nn.Parameter(torch.full((n_out,), math.log(0.1 * self.eps)))
+        self.register_buffer("obs_mean", torch.tensor(meta["obs_mean"], dtype=torch.float32))
+        self.register_buffer("obs_std", torch.tensor(meta["obs_std"], dtype=torch.float32))
+
+    def normalise(self, obs: torch.Tensor) -> torch.Tensor:
+        return ((obs.float() - self.obs_mean) / self.obs_std).clamp(-10.0, 10.0)
+
+    def mean(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.eps * torch.tanh(self.mean_net(self.normalise(obs)))
+
+    def distribution(self, obs: torch.Tensor) -> torch.distributions.Normal:
+        return torch.distributions.Normal(self.mean(obs), self.log_std.exp().expand(len(obs), -1))
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.value_net(self.normalise(obs)).squeeze(-1)
+
+
+class LearnedAttack(Attack):
+    """ARIL-A at evaluation: ``delta ~ N(f(s), std)`` clipped to ±eps, drawn from the episode's rng
+    (``stochastic``, as the paper samples it), or the mean ``f(s)``."""
+
+    name = "aril_a"
+
+    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True):
+        super().__init__(layout, net.eps)
+        self.net, self.stochastic = net, stochastic
+        self.std = net.log_std.detach().exp().double().numpy()
+
+    @torch.inference_mode()
+    def propose(self, true_obs, rngs):
+        blocks, n = _blocks(true_obs)  # batch-invariant, like the policies
+        mean = torch.cat([self.net.mean(b) for b in blocks])[:n].double().numpy()
+        delta = np.zeros_like(true_obs)
+        delta[:, : self.layout.n_position] = mean
+        if self.stochastic:
+            for row, rng in enumerate(rngs):
+                delta[row, : self.layout.n_position] += self.std * rng.standard_normal(len(self.std))
+        return delta
+
+
+def save_adversary(net: AdversaryNet, path: str | Path) -> Path:
+    return save_weights(net, net.meta, path, "adversary")
+
+
+def load_adversary(path: str | Path, env_id: str | None = None, mode: str | None = None) -> AdversaryNet:
+    """Load an adversary file; with ``env_id``/``mode``, check it was trained for them."""
+    meta, state_dict = load_weights(path, "adversary")
+    try:
+        net = AdversaryNet(meta)
+        net.load_state_dict(state_dict)
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        raise PolicyFileError(f"{path}: corrupt adversary file ({type(err).__name__}: {err})") from None
+    for name, wanted in (("env_id", env_id), ("mode", mode)):
+        if wanted is not None and meta[name] != wanted:
+            raise PolicyFileError(f"{path}: adversary trained for {meta['env_id']} ({meta['mode']}), "
+                                  f"not {env_id or meta['env_id']} ({mode or meta['mode']})")
+    return net.eval()
+
+
+@dataclass
+class AdversaryConfig:
+    """Arguments of ``aril train-adversary`` (defaults: the paper's Table 3 and appendix)."""
+
+    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    mode: str = arg("sensory", "sensory or physical")
+    eps: float = arg(0.05, "L-infinity budget on the zero-order entries")
+    victim: str = arg("expert", "the attacked policy: a bundled name or a policy file (only its actions are used)")
+    expert: str = arg("expert", "the expert whose action on the true state defines the loss")
+    steps: int = arg(1_000_000, "environment steps of training (the paper: 1e6 per attack stage)")
+    n_envs: int = arg(16, "simulators run side by side")
+    rollout: int = arg(256, "steps per simulator between PPO updates")
+    epochs: int = arg(10, "PPO epochs per update")
+    minibatch: int = arg(1024, "samples per PPO minibatch")
+    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
+    gamma: float = arg(0.99, "discount of the adversary's return")
+    gae_lambda: float = arg(0.95, "GAE lambda")
+    clip: float = arg(0.2, "PPO clip range (Table 3)")
+    ent_coef: float = arg(0.01, "entropy bonus (Table 3)")
+    vf_coef: float = arg(0.5, "value loss weight (Table 3)")
+    max_grad_norm: float = arg(0.5, "gradient norm clip")
+    hidden: int = arg(64, "width of the two hidden layers")
+    seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
+    out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
+    threads: int = arg(1, "torch threads")
+
+
+def train_adversary(cfg: AdversaryConfig, log=print) -> Path:
+    """Train ARIL-A against ``cfg.victim``; writes the adversary file and returns its path."""
+    if cfg.mode not in MODES or cfg.mode == "clean":
+        raise ValueError(f"mode:= must be sensory or physical, got {cfg.mode!r}")
+    if not cfg.eps > 0:
+        raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
+    torch.set_num_threads(cfg.threads)
+    layout = layout_of(cfg.env)
+    victim, expert = resolve_policy(cfg.victim, cfg.env), resolve_policy(cfg.expert, cfg.env)
+    out = Path(cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt")
+    command = "aril train-adversary " + " ".join(f"{k}:={shlex.quote(str(v))}" for k, v in vars(cfg).items() if v != "")
+    gen = torch.Generator().manual_seed(cfg.seed)
+    n, T, n_pos = cfg.n_envs, cfg.rollout, layout.n_position
+
+    # --- simulators; observation statistics from a short random warm-up fix the input scaling
+    sims = [MujocoSim(cfg.env) for _ in range(n)]
+    next_seed = cfg.seed * 1_000_003
+    obs = np.stack([sim.reset(next_seed + i) for i, sim in enumerate(sims)])
+    next_seed += n
+    obs_mean, obs_std = obs.mean(0), obs.std(0) + 1e-3
+    meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim, "n_position": n_pos,
+            "hidden": cfg.hidden, "obs_mean": obs_mean.tolist(), "obs_std": obs_std.tolist(), "provenance": {}}
+    with torch.random.fork_rng():  # seeded initial weights without touching the global generator
+        torch.manual_seed(cfg.seed)
+        net = AdversaryNet(meta)
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
+
+    buf_obs = torch.zeros(T, n, layout.obs_dim)
+    buf_sample, buf_logp = torch.zeros(T, n, n_pos), torch.zeros(T, n)
+    buf_reward, buf_value, buf_done = torch.zeros(T, n), torch.zeros(T, n), torch.zeros(T, n)
+    episode_loss, episode_return = np.zeros(n), np.zeros(n)
+    finished_loss, finished_return = [], []
+    started, steps = time.time(), 0
+    while steps < cfg.steps:
+        # --- collect: the adversary perturbs, the victim acts, the expert labels the true state
+        for t in range(T):
+            obs_t = torch.as_tensor(obs, dtype=torch.float32)
+            with torch.no_grad():
+                dist = net.distribution(obs_t)
+                sample = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=gen)
+                buf_logp[t] = dist.log_prob(sample).sum(-1)
+                buf_value[t] = net.value(obs_t)
+            delta = np.zeros_like(obs)
+            delta[:, :n_pos] = sample.clamp(-cfg.eps, cfg.eps).double().numpy()
+            seen = apply_perturbation(cfg.mode, sims, obs, delta)
+            action = victim.act(seen)
+            loss = ((action - expert.act(obs)) ** 2).sum(axis=1)
+            buf_obs[t], buf_sample[t] = obs_t, sample
+            reward = torch.as_tensor(loss, dtype=torch.float32)
+            for i, sim in enumerate(sims):
+                obs[i], env_reward, terminated, truncated = sim.step(action[i])
+                episode_loss[i] += loss[i]
+                episode_return[i] += env_reward
+                if truncated and not terminated:  # time limit: bootstrap from the state it stopped in
+                    with torch.no_grad():
+                        reward[i] += cfg.gamma * net.value(torch.as_tensor(obs[i:i + 1], dtype=torch.float32))[0]
+                if terminated or truncated:
+                    finished_loss.append(episode_loss[i])
+                    finished_return.append(episode_return[i])
+                    episode_loss[i] = episode_return[i] = 0.0
+                    obs[i] = sim.reset(next_seed)
+                    next_seed += 1
+                buf_done[t, i] = float(terminated or truncated)
+            buf_reward[t] = reward
+        steps += T * n
+
+        # --- generalised advantage estimation
+        with torch.no_grad():
+            next_value = net.value(torch.as_tensor(obs, dtype=torch.float32))
+        advantages = torch.zeros(T, n)
+        last = torch.zeros(n)
+        for t in reversed(range(T)):
+            not_done = 1.0 - buf_done[t]
+            value_after = next_value if t == T - 1 else buf_value[t + 1]
+            td = buf_reward[t] + cfg.gamma * value_after * not_done - buf_value[t]
+            last = td + cfg.gamma * cfg.gae_lambda * not_done * last
+            advantages[t] = last
+        returns = advantages + buf_value
+
+        # --- clipped PPO updates
+        flat = lambda x: x.reshape(T * n, *x.shape[2:])  # noqa: E731
+        b_obs, b_sample, b_logp = flat(buf_obs), flat(buf_sample), flat(buf_logp)
+        b_adv, b_ret = flat(advantages), flat(returns)
+        for _ in range(cfg.epochs):
+            for idx in torch.randperm(T * n, generator=gen).split(cfg.minibatch):
+                dist = net.distribution(b_obs[idx])
+                ratio = (dist.log_prob(b_sample[idx]).sum(-1) - b_logp[idx]).exp()
+                adv = (b_adv[idx] - b_adv[idx].mean()) / (b_adv[idx].std() + 1e-8)
+                policy_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
+                value_loss = ((net.value(b_obs[idx]) - b_ret[idx]) ** 2).mean()
+                entropy = dist.entropy().sum(-1).mean()
+                loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+                optimizer.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+                optimizer.step()
+
+        seconds = time.time() - started
+        recent = slice(-4 * n, None)
+        log(f"[train-adversary {cfg.env} {cfg.mode} eps={cfg.eps}] step {steps:>8d}  {steps / seconds:6.0f} steps/s  "
+            f"episode loss {np.mean(finished_loss[recent]) if finished_loss else float('nan'):9.1f}  "
+            f"victim return {np.mean(finished_return[recent]) if finished_return else float('nan'):8.1f}  "
+            f"std/eps {float(net.log_std.detach().exp().mean()) / cfg.eps:.3f}", flush=True)
+    for sim in sims:
+        sim.close()
+    net.meta["provenance"] = {
+        "command": command, "victim": cfg.victim, "victim_provenance": victim.meta.provenance,
+        "expert": cfg.expert, "steps": steps, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
+        "final_episode_loss": float(np.mean(finished_loss[-4 * n:])) if finished_loss else None,
+        "git_revision": git_revision(), "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    save_adversary(net, out)
+    log(json.dumps({"out": str(out), "steps": steps, "steps_per_s": round(steps / (time.time() - started), 1)}))
+    return out

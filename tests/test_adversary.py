@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+import torch
+
+from aril_ros.adversary import AdversaryConfig, load_adversary, save_adversary, train_adversary
+from aril_ros.attacks import make_attack
+from aril_ros.envs import layout_of
+from aril_ros.policy import PolicyFileError, save_policy
+from aril_ros.rollout import RolloutEngine
+
+
+@pytest.fixture
+def swimmer_files(tmp_path, make_policy):
+    """A victim that reacts strongly to its observation (scaled random weights) and is its own
+    expert, so the objective is exactly the disagreement the attack causes."""
+    victim = make_policy("Swimmer-v5", seed=1)
+    with torch.no_grad():
+        for layer in victim.net[::2]:
+            layer.weight.mul_(3.0)
+    path = save_policy(victim, tmp_path / "victim.pt")
+    return path, path
+
+
+def objective(adversary_file, victim, expert, mode="sensory"):
+    """Mean per-step disagreement of the victim with the expert under the adversary, fixed seeds."""
+    from aril_ros.policy import load_policy
+
+    attack = make_attack("aril_a", layout_of("Swimmer-v5"), 0.0, adversary=str(adversary_file), mode=mode)
+    engine = RolloutEngine("Swimmer-v5", load_policy(victim), load_policy(expert), attack, mode, n_envs=4,
+                           horizon=250)
+    return engine.rollout(4, seed=123).mean_expert_loss
+
+
+@pytest.mark.parametrize("mode", ["sensory", "physical"])
+def test_a_short_training_run_increases_the_objective(mode, swimmer_files, tmp_path):
+    victim, expert = swimmer_files
+    common = dict(env="Swimmer-v5", mode=mode, eps=0.3, victim=str(victim), expert=str(expert), n_envs=8,
+                  rollout=250, seed=3)
+    untrained = train_adversary(AdversaryConfig(**common, steps=0, out=str(tmp_path / "a0.pt")), log=lambda *a, **k: None)
+    trained = train_adversary(AdversaryConfig(**common, steps=24_000, out=str(tmp_path / "a1.pt")),
+                              log=lambda *a, **k: None)
+    before, after = objective(untrained, victim, expert, mode), objective(trained, victim, expert, mode)
+    assert after > 1.3 * before, (before, after)
+
+
+def test_adversary_files_round_trip_and_refuse_mismatches(swimmer_files, tmp_path):
+    victim, expert = swimmer_files
+    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert),
+                                           steps=0, out=str(tmp_path / "adv.pt")), log=lambda *a, **k: None)
+    net = load_adversary(path, "Swimmer-v5", "sensory")
+    assert net.meta["provenance"]["victim"] == str(victim) and net.meta["eps"] == 0.2
+    again = load_adversary(save_adversary(net, tmp_path / "copy.pt"))
+    obs = torch.randn(5, 8)
+    assert torch.equal(net.mean(obs), again.mean(obs))
+    assert torch.all(net.mean(obs * 100).abs() <= 0.2)  # tanh * eps bounds the mean
+    with pytest.raises(PolicyFileError, match="trained for Swimmer-v5 \\(sensory\\), not HalfCheetah-v5"):
+        load_adversary(path, "HalfCheetah-v5")
+    with pytest.raises(PolicyFileError, match="not Swimmer-v5 \\(physical\\)"):
+        load_adversary(path, mode="physical")
+    with pytest.raises(PolicyFileError, match="not an aril_ros adversary file"):
+        load_adversary(victim)  # a policy file is not an adversary
+    with pytest.raises(ValueError, match="trained with eps=0.2, not eps=0.1"):
+        make_attack("aril_a", layout_of("Swimmer-v5"), 0.1, adversary=str(path))
+    with pytest.raises(ValueError, match="needs an adversary file"):
+        make_attack("aril_a", layout_of("Swimmer-v5"), 0.1)
+
+
+def test_learned_attack_is_seeded_and_bounded(swimmer_files, tmp_path):
+    victim, expert = swimmer_files
+    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert),
+                                           steps=0, out=str(tmp_path / "adv.pt")), log=lambda *a, **k: None)
+    attack = make_attack("aril_a", layout_of("Swimmer-v5"), 0.2, adversary=str(path))
+    obs = np.random.default_rng(0).normal(size=(6, 8))
+    a = attack.perturb(obs, [np.random.default_rng([1, i]) for i in range(6)])
+    b = attack.perturb(obs, [np.random.default_rng([1, i]) for i in range(6)])
+    np.testing.assert_array_equal(a, b)
+    assert np.all(np.abs(a[:, :3]) <= 0.2) and np.all(a[:, 3:] == 0)
