@@ -20,7 +20,6 @@ from __future__ import annotations
 import datetime
 import json
 import math
-import shlex
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .args import arg
+from .args import arg, command_line
 from .attacks import Attack
 from .envs import MujocoSim, ObsLayout, layout_of
 from .experts import git_revision, resolve_policy
@@ -148,7 +147,7 @@ def train_adversary(cfg: AdversaryConfig, log=print) -> Path:
     layout = layout_of(cfg.env)
     victim, expert = resolve_policy(cfg.victim, cfg.env), resolve_policy(cfg.expert, cfg.env)
     out = Path(cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt")
-    command = "aril train-adversary " + " ".join(f"{k}:={shlex.quote(str(v))}" for k, v in vars(cfg).items() if v != "")
+    command = command_line("aril train-adversary", cfg)
     gen = torch.Generator().manual_seed(cfg.seed)
     n, T, n_pos = cfg.n_envs, cfg.rollout, layout.n_position
 

@@ -6,6 +6,7 @@ Each argument dataclass declares its fields with :func:`arg`, which carries the 
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import typing
 
 
@@ -44,6 +45,12 @@ def parse_args(cls, argv: list[str]):
             raise ArgumentError(f"unknown argument {key!r}; known: {', '.join(names)}")
         values[key] = _convert(key, text, types[key])
     return cls(**values)
+
+
+def command_line(prog: str, cfg) -> str:
+    """The command that reproduces ``cfg`` (recorded in the provenance of what it makes)."""
+    return prog + " " + " ".join(f"{f.name}:={shlex.quote(str(getattr(cfg, f.name)))}"
+                                 for f in dataclasses.fields(cfg) if getattr(cfg, f.name) != "")
 
 
 def usage(cls, prog: str, summary: str) -> str:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import datetime
 import json
-import shlex
 import subprocess
 import time
 from dataclasses import dataclass
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .args import arg
+from .args import arg, command_line
 from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
@@ -132,9 +131,7 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
     out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
-    command = "aril train-expert " + " ".join(
-        f"{k}:={shlex.quote(str(v))}" for k, v in vars(cfg).items() if k != "out" or v
-    )
+    command = command_line("aril train-expert", cfg)
     if cfg.algo == "sac":
         env = make_gym_env(cfg.env)
         model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
