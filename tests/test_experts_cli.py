@@ -51,7 +51,7 @@ def test_bundled_experts_load_with_provenance(env_id):
     expert = resolve_policy("expert", env_id)
     prov = expert.meta.provenance
     assert prov["command"].startswith("aril train-expert") and prov["train_seconds"] > 0
-    assert expert.meta.hidden == [256, 256]
+    assert len(expert.meta.hidden) == 2  # the paper: two hidden layers
 
 
 def test_resolve_policy_errors():
