@@ -1,8 +1,9 @@
 """Attacker node: perturbs the zero-order state within ±eps, as the mode says.
 
 Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random | fgsm |
-fgsm_k), ``eps``, ``seed``, and for the white-box attacks ``victim`` (the attacked policy: a bundled
-name or a file), ``expert`` and ``k`` (fgsm_k steps). Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
+fgsm_k | aril_a), ``eps``, ``seed``; for the white-box attacks ``victim`` (the attacked policy: a
+bundled name or a file), ``expert`` and ``k`` (fgsm_k steps); for aril_a ``attack_file`` (an
+adversary file: black-box, so it can attack any policy node, an external one included). Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
 engine, so both give the same perturbations.
 
 - clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation`` = state + delta.
@@ -47,7 +48,8 @@ class AttackerNode(Node):
             attack, self.layout, declared(self, "eps", 0.0) if attack != "none" else 0.0,
             victim=resolve_policy(victim_name, self.layout.env_id) if white_box else None,
             expert=resolve_policy(expert_name, self.layout.env_id) if white_box else None,
-            steps=declared(self, "k", 10) if attack == "fgsm_k" else None)
+            steps=declared(self, "k", 10) if attack == "fgsm_k" else None,
+            adversary=declared(self, "attack_file", ""), mode=self.mode)
         self.seed = declared(self, "seed", 0)
         self.rng = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)

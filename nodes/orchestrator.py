@@ -27,7 +27,7 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.args import arg
-from aril_ros.attacks import ATTACKS, WHITE_BOX
+from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, make_attack
 from aril_ros.envs import layout_of
 from aril_ros.experts import git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
@@ -45,9 +45,10 @@ class GraphConfig:
 
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
-    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
+    attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
     eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
     k: int = arg(10, "steps of fgsm_k")
+    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     policy: str = arg("expert", "a bundled name (expert), a policy file, or external (start none, wait for one)")
@@ -126,13 +127,15 @@ class Orchestrator:
         self.attack = cfg.attack or ("none" if cfg.mode == "clean" else "random")
         if cfg.mode == "clean" and self.attack != "none":
             raise GraphError(f"mode:=clean runs no attack, got attack:={self.attack}")
-        if self.attack not in ATTACKS:
-            raise GraphError(f"attack:= must be one of {', '.join(ATTACKS)}, got {self.attack!r}")
+        if self.attack not in ATTACK_NAMES:
+            raise GraphError(f"attack:= must be one of {', '.join(ATTACK_NAMES)}, got {self.attack!r}")
         if self.attack in WHITE_BOX and cfg.policy == "external":
             raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
                              "policy can be attacked with attack:=random")
         self.eps = cfg.eps if self.attack != "none" else 0.0
         self.layout = layout_of(cfg.env)
+        if self.attack == "aril_a":  # a missing or mismatched adversary file is reported before any process starts
+            self.eps = make_attack("aril_a", self.layout, 0.0, adversary=cfg.attack_file, mode=cfg.mode).eps
         # load both now: a bad file is reported before any process starts
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env).meta
@@ -149,7 +152,8 @@ class Orchestrator:
             "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
             "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "expert": cfg.expert,
-                         **({"victim": cfg.policy} if self.attack in WHITE_BOX else {})},
+                         **({"victim": cfg.policy} if self.attack in WHITE_BOX else {}),
+                         **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
             "expert": {**common, "expert": cfg.expert},
         }
         if cfg.policy != "external":

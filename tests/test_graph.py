@@ -71,17 +71,26 @@ def summary_of(out) -> dict:
 @pytest.mark.parametrize("mode, env_id, attack", [("clean", "Swimmer-v5", "none"),
                                                   ("sensory", "HalfCheetah-v5", "random"),
                                                   ("physical", "Ant-v5", "random"),
-                                                  ("physical", "HalfCheetah-v5", "fgsm_k")])
+                                                  ("physical", "HalfCheetah-v5", "fgsm_k"),
+                                                  ("sensory", "Swimmer-v5", "aril_a")])
 def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp_path):
+    from aril_ros.adversary import AdversaryConfig, train_adversary
+
     policy, expert = policy_files(tmp_path, env_id)
+    adversary = None
+    if attack == "aril_a":
+        adversary = train_adversary(AdversaryConfig(env=env_id, mode=mode, eps=0.1, victim=str(policy),
+                                                    expert=str(expert), steps=0, out=str(tmp_path / "adversary.pt")),
+                                    log=lambda *a, **k: None)
     log = tmp_path / "run.mcap"
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
                                    f"attack:={attack}", "eps:=0.1", "k:=3", "episodes:=2", "horizon:=80", "seed:=4",
-                                   f"record:={log}"))
+                                   f"record:={log}", *([f"attack_file:={adversary}"] if adversary else [])))
     victim = load_policy(policy)
     engine = RolloutEngine(env_id, victim, load_policy(expert),
                            make_attack(attack, layout_of(env_id), 0.1 if attack != "none" else 0, victim=victim,
-                                       expert=load_policy(expert), steps=3 if attack == "fgsm_k" else None), mode,
+                                       expert=load_policy(expert), steps=3 if attack == "fgsm_k" else None,
+                                       adversary=adversary and str(adversary), mode=mode), mode,
                            n_envs=2, horizon=80)
     traj = engine.rollout(2, seed=4)
     run = read_run(log)
