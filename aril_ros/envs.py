@@ -201,12 +201,18 @@ class MujocoSim:
 
     def reset(self, seed: int) -> np.ndarray:
         obs, _ = self.env.reset(seed=int(seed))
+        self.elapsed = 0
         return obs
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
-        """Advance one control step; returns (observation, reward, terminated, truncated)."""
-        obs, reward, terminated, truncated, _ = self.env.step(action)
-        return obs, float(reward), bool(terminated), bool(truncated)
+        """Advance one control step; returns (observation, reward, terminated, truncated).
+
+        Steps the unwrapped env and counts the horizon here: gymnasium's checker and time-limit
+        wrappers cost a third of a HalfCheetah step and add nothing after the first one.
+        """
+        obs, reward, terminated, _, _ = self._sim.step(action)
+        self.elapsed += 1
+        return obs, float(reward), bool(terminated), self.elapsed >= self.horizon
 
     def observe(self) -> np.ndarray:
         return self._sim._get_obs()

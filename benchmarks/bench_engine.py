@@ -17,7 +17,7 @@ import torch
 
 from aril_ros.args import arg, parse_args, usage
 from aril_ros.attacks import make_attack
-from aril_ros.envs import MujocoSim, layout_of
+from aril_ros.envs import layout_of, make_gym_env
 from aril_ros.experts import resolve_policy
 from aril_ros.rollout import RolloutEngine
 
@@ -33,14 +33,15 @@ class BenchConfig:
 
 
 def raw_steps_per_s(env_id: str, steps: int) -> float:
-    sim = MujocoSim(env_id)
-    sim.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(-1, 1, (steps, sim.layout.act_dim))
+    """gymnasium's ``env.step`` (as ``gym.make`` builds it) with precomputed random actions."""
+    env = make_gym_env(env_id)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, env.action_space.shape[0]))
     started = time.perf_counter()
     for a in actions:
-        _, _, terminated, truncated = sim.step(a)
+        _, _, terminated, truncated, _ = env.step(a)
         if terminated or truncated:
-            sim.reset(seed=0)
+            env.reset(seed=0)
     return steps / (time.perf_counter() - started)
 
 
