@@ -21,6 +21,7 @@ from .adversary import AdversaryConfig, train_adversary
 from .attacks import ATTACK_NAMES, make_attack
 from .envs import EnvLayoutError, layout_of
 from .experts import ExpertConfig, resolve_policy, train_expert
+from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
 from .policy import PolicyFileError
 from .rollout import MODES, RolloutEngine
@@ -119,6 +120,7 @@ def _replay_config():
 COMMANDS = {
     "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
     "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
+    "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
     "train-adversary": (AdversaryConfig, train_adversary,
                         "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
     "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),

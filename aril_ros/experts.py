@@ -28,7 +28,7 @@ from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-BUNDLED_KINDS = ("expert",)
+BUNDLED_KINDS = ("expert", "bc")
 
 # rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
 HYPERPARAMETERS = {

@@ -29,6 +29,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from . import protocol as P
+from .dataset import DaggerDataset
 from .protocol import StepTag
 from .rollout import StepArrays
 
@@ -262,19 +263,6 @@ def recover(path: str | Path, out: str | Path) -> int:
     return writer.steps
 
 
-@dataclass
-class DaggerDataset:
-    """(observation the policy saw, expert action on the true state) pairs, with where they came from."""
-
-    obs: np.ndarray
-    expert_action: np.ndarray
-    episode: np.ndarray
-    source: list[str]
-
-    def __len__(self) -> int:
-        return len(self.obs)
-
-
 def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: bool = False) -> DaggerDataset:
     """Aggregate one or many run logs, in the order given; all must be of the same env."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
@@ -286,9 +274,6 @@ def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: boo
         envs.add(env_id)
     if len(envs) > 1:
         raise RunLogError(f"run logs of different envs cannot make one dataset: {sorted(envs)}")
-    return DaggerDataset(
-        obs=np.concatenate([r.obs for r in runs]),
-        expert_action=np.concatenate([r.expert_action for r in runs]),
-        episode=np.concatenate([r.episodes for r in runs]),
-        source=[str(p) for p, r in zip(paths, runs) for _ in r.tags],
-    )
+    return DaggerDataset.concatenate([
+        DaggerDataset(obs=r.obs, expert_action=r.expert_action, episode=r.episodes, source=[str(p)] * len(r.tags))
+        for p, r in zip(paths, runs)])

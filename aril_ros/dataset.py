@@ -1,0 +1,41 @@
+"""The DAgger dataset: (observation the policy saw, expert action on the true state) pairs.
+
+One format whatever the source: in-process rollouts (:meth:`DaggerDataset.from_trajectories`) or
+run logs recorded through the ROS graph (:func:`aril_ros.mcap_log.load_dagger_dataset`).
+Aggregation (DAgger's data set union) is :meth:`DaggerDataset.concatenate`, in the order given.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class DaggerDataset:
+    obs: np.ndarray
+    """[n, obs_dim] what the policy saw (the attacked observation under a sensory attack)"""
+    expert_action: np.ndarray
+    """[n, act_dim] the expert's action on the true state"""
+    episode: np.ndarray
+    """[n] the episode each pair came from"""
+    source: list[str]
+    """[n] where each pair came from: a run log's path, or ``inprocess:seed=<seed>``"""
+
+    def __len__(self) -> int:
+        return len(self.obs)
+
+    @classmethod
+    def from_trajectories(cls, traj) -> "DaggerDataset":
+        """The steps of an engine rollout (:class:`aril_ros.rollout.Trajectories`), episode by episode."""
+        steps = traj.step_mask
+        episode = np.broadcast_to(np.arange(len(traj.length))[:, None], steps.shape)[steps]
+        return cls(obs=traj.obs[steps], expert_action=traj.expert_action[steps], episode=episode,
+                   source=[f"inprocess:seed={traj.seed}"] * int(steps.sum()))
+
+    @classmethod
+    def concatenate(cls, parts: list["DaggerDataset"]) -> "DaggerDataset":
+        return cls(obs=np.concatenate([p.obs for p in parts]),
+                   expert_action=np.concatenate([p.expert_action for p in parts]),
+                   episode=np.concatenate([p.episode for p in parts]),
+                   source=[s for p in parts for s in p.source])
