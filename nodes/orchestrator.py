@@ -12,7 +12,6 @@ from __future__ import annotations
 import ctypes
 import datetime
 import fcntl
-import json
 import os
 import signal
 import subprocess

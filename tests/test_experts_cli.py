@@ -4,7 +4,6 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 
 from aril_ros.args import ArgumentError, parse_args
 from aril_ros.cli import EvalConfig, main
