@@ -31,7 +31,7 @@ from torch import nn
 from .args import arg, command_line
 from .attacks import Attack
 from .envs import MujocoSim, ObsLayout, layout_of
-from .experts import git_revision, resolve_policy
+from .experts import DATA_DIR, git_revision, resolve_policy
 from .policy import PolicyFileError, _blocks, load_weights, save_weights
 from .rollout import MODES, apply_perturbation
 
@@ -89,6 +89,11 @@ class LearnedAttack(Attack):
             for row, rng in enumerate(rngs):
                 delta[row, : self.layout.n_position] += self.std * rng.standard_normal(len(self.std))
         return delta
+
+
+def bundled_adversary_path(env_id: str, mode: str) -> Path:
+    """Where the bundled ARIL-A adversary against the bundled learner lives (``attack:=aril_a`` by name)."""
+    return DATA_DIR / "adversary" / f"{env_id}-{mode}.pt"
 
 
 def save_adversary(net: AdversaryNet, path: str | Path) -> Path:

@@ -115,10 +115,14 @@ def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=No
     if name not in ATTACK_NAMES:
         raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACK_NAMES)}")
     if name == "aril_a":
-        from .adversary import LearnedAttack, load_adversary  # the adversary module builds on this one
+        from .adversary import LearnedAttack, bundled_adversary_path, load_adversary  # it builds on this module
 
         if not adversary:
-            raise ValueError("attack aril_a needs an adversary file (attack_file:=, from aril train-adversary)")
+            bundled = bundled_adversary_path(layout.env_id, mode or "sensory")
+            if not bundled.exists():
+                raise ValueError(f"attack aril_a needs an adversary file: no bundled one for {layout.env_id} "
+                                 f"{mode} (looked for {bundled}); pass attack_file:= (from aril train-adversary)")
+            adversary = str(bundled)
         net = load_adversary(adversary, layout.env_id, mode)
         if eps and abs(eps - net.eps) > 1e-12:
             raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps}")

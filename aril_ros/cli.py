@@ -16,6 +16,7 @@ from .adversary import AdversaryConfig, train_adversary
 from .args import ArgumentError, arg, parse_args, usage
 from .envs import EnvLayoutError
 from .evaluation import EvalConfig, evaluate
+from .experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
 from .experts import ExpertConfig, train_expert
 from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
@@ -68,6 +69,10 @@ COMMANDS = {
     "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
     "train-adversary": (AdversaryConfig, train_adversary,
                         "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
+    "calibrate-eps": (CalibrationConfig, calibrate_eps,
+                      "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%); writes results/."),
+    "attack-table": (AttackTableConfig, attack_table,
+                     "The paper's Adversary rows (clean, random, FGSM, FGSM^k, ARIL-A); writes results/."),
     "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
     "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }

@@ -1,0 +1,29 @@
+import json
+
+from aril_ros.experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
+from aril_ros.policy import save_policy
+
+QUIET = dict(log=lambda *a, **k: None)
+
+
+def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
+    victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
+    expert = save_policy(make_policy("Swimmer-v5", seed=2), tmp_path / "expert.pt")
+    calibration = calibrate_eps(CalibrationConfig(envs="Swimmer-v5", modes="sensory", policy=str(victim),
+                                                  expert=str(expert), grid="0.01,0.5", episodes=2, horizon=60,
+                                                  max_drop=10.0, out=str(tmp_path / "cal")), **QUIET)
+    row = calibration["rows"][0]
+    assert row["chosen_eps"] == 0.5 and len(row["sweep"]) == 2  # the loose rule keeps the largest eps
+    assert "| Swimmer-v5 | sensory |" in (tmp_path / "cal.md").read_text()
+    table = attack_table(AttackTableConfig(envs="Swimmer-v5", mode="sensory", policy=str(victim),
+                                           expert=str(expert), calibration=str(tmp_path / "cal.json"),
+                                           episodes=2, horizon=60, adversary_steps=2000, k=3,
+                                           adversary_dir=str(tmp_path), out=str(tmp_path / "attacks")), **QUIET)
+    cells = table["cells"]["Swimmer-v5"]
+    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "aril_a"}
+    assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
+    assert cells["fgsm"]["eps"] == 0.5 and cells["none"]["eps"] == 0.0
+    saved = json.loads((tmp_path / "attacks.json").read_text())
+    assert saved["command"].startswith("aril attack-table mode:=sensory")
+    assert "ARIL-A" in (tmp_path / "attacks.md").read_text()
+    assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
