@@ -28,7 +28,7 @@ from aril_ros import protocol as P
 from aril_ros.args import arg
 from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, make_attack
 from aril_ros.envs import layout_of
-from aril_ros.experts import git_revision, resolve_policy
+from aril_ros.experts import BUNDLED_KINDS, git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.protocol import StepTag
 from aril_ros.rollout import MODES
@@ -147,16 +147,17 @@ class Orchestrator:
     def start_nodes(self, env: dict) -> None:
         cfg = self.cfg
         common = {"env": cfg.env}
+        policy, expert = _node_path(cfg.policy), _node_path(cfg.expert)
         specs = {
             "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
             "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
-                         "k": cfg.k, "expert": cfg.expert,
-                         **({"victim": cfg.policy} if self.attack in WHITE_BOX else {}),
-                         **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
-            "expert": {**common, "expert": cfg.expert},
+                         "k": cfg.k, "expert": expert,
+                         **({"victim": policy} if self.attack in WHITE_BOX else {}),
+                         **({"attack_file": _node_path(cfg.attack_file)} if cfg.attack_file else {})},
+            "expert": {**common, "expert": expert},
         }
         if cfg.policy != "external":
-            specs["policy"] = {**common, "policy": cfg.policy}
+            specs["policy"] = {**common, "policy": policy}
         self.nodes = [NodeProcess(name, params, self.log_dir, env) for name, params in specs.items()]
 
     def check_nodes(self) -> None:
@@ -269,6 +270,11 @@ class Orchestrator:
             "steps": steps, "steps_per_s": round(steps / seconds, 1),
             "record": str(self.record) if self.record else None, "domain": domain,
         }
+
+
+def _node_path(name: str) -> str:
+    """A bundled name as it is; a file as an absolute path, since the nodes run in the project root."""
+    return name if name in (*BUNDLED_KINDS, "external") else str(Path(name).resolve())
 
 
 def _raise_interrupt(signum, frame):
