@@ -122,7 +122,8 @@ class AdversaryConfig:
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
     mode: str = arg("sensory", "sensory or physical")
     eps: float = arg(0.05, "L-infinity budget on the zero-order entries")
-    victim: str = arg("expert", "the attacked policy: a bundled name or a policy file (only its actions are used)")
+    victim: str = arg("expert", "the attacked policy: a bundled name, a policy file, or ros (a running policy node "
+                                "on observation -> action in this ROS_DOMAIN_ID); only its actions are used")
     expert: str = arg("expert", "the expert whose action on the true state defines the loss")
     steps: int = arg(1_000_000, "environment steps of training (the paper: 1e6 per attack stage)")
     n_envs: int = arg(16, "simulators run side by side")
@@ -142,15 +143,17 @@ class AdversaryConfig:
     threads: int = arg(1, "torch threads")
 
 
-def train_adversary(cfg: AdversaryConfig, log=print) -> Path:
-    """Train ARIL-A against ``cfg.victim``; writes the adversary file and returns its path."""
+def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
+    """Train ARIL-A against ``cfg.victim`` (or ``victim``: any object with ``act(obs_batch)`` and
+    ``meta.provenance``, e.g. a policy node over ROS); writes the adversary file, returns its path."""
     if cfg.mode not in MODES or cfg.mode == "clean":
         raise ValueError(f"mode:= must be sensory or physical, got {cfg.mode!r}")
     if not cfg.eps > 0:
         raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
     torch.set_num_threads(cfg.threads)
     layout = layout_of(cfg.env)
-    victim, expert = resolve_policy(cfg.victim, cfg.env), resolve_policy(cfg.expert, cfg.env)
+    victim = victim if victim is not None else resolve_policy(cfg.victim, cfg.env)
+    expert = resolve_policy(cfg.expert, cfg.env)
     out = Path(cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt")
     command = command_line("aril train-adversary", cfg)
     gen = torch.Generator().manual_seed(cfg.seed)

@@ -51,6 +51,18 @@ def run_recover(cfg: RecoverConfig) -> int:
     return steps
 
 
+def run_train_adversary(cfg: AdversaryConfig):
+    if cfg.victim != "ros":
+        return train_adversary(cfg)
+    from nodes.remote_policy import RemotePolicy  # a black-box victim over ROS
+
+    victim = RemotePolicy(cfg.env)
+    try:
+        return train_adversary(cfg, victim=victim)
+    finally:
+        victim.close()
+
+
 def run_replay(cfg) -> int:
     from nodes.replay import replay  # the only subcommand that needs ROS
 
@@ -67,7 +79,7 @@ COMMANDS = {
     "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
     "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
     "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
-    "train-adversary": (AdversaryConfig, train_adversary,
+    "train-adversary": (AdversaryConfig, run_train_adversary,
                         "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
     "calibrate-eps": (CalibrationConfig, calibrate_eps,
                       "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%); writes results/."),

@@ -404,3 +404,35 @@ def test_a_killed_run_leaves_its_complete_steps_recoverable(tmp_path):
     steps = recover(log, tmp_path / "recovered.mcap")
     run = read_run(tmp_path / "recovered.mcap", allow_interrupted=True)
     assert steps == len(run.tags) > 0
+
+
+def test_aril_a_trains_against_a_policy_node_over_ros(tmp_path):
+    """Black box: the adversary only sees the actions a running policy node publishes."""
+    policy, expert = policy_files(tmp_path, "Swimmer-v5")
+    domain = free_domain()
+    node = subprocess.Popen([sys.executable, "-m", "nodes.policy_node", "--ros-args", "-p", "env:=Swimmer-v5",
+                             "-p", f"policy:={policy}"], env=ros_env(domain), cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        out = subprocess.run([sys.executable, "-m", "aril_ros", "train-adversary", "env:=Swimmer-v5", "victim:=ros",
+                              f"expert:={expert}", "eps:=0.1", "steps:=1024", "n_envs:=8", "rollout:=128",
+                              f"out:={tmp_path / 'adv.pt'}"], env=ros_env(domain), cwd=ROOT, capture_output=True,
+                             text=True, timeout=120)
+        from nodes.remote_policy import RemotePolicy
+
+        os.environ["ROS_DOMAIN_ID"] = str(domain)
+        remote = RemotePolicy("Swimmer-v5")
+        obs = np.random.default_rng(0).normal(size=(10, 8))
+        try:
+            np.testing.assert_array_equal(remote.act(obs), load_policy(policy).act(obs))  # the node's, exactly
+        finally:
+            remote.close()
+    finally:
+        node.send_signal(signal.SIGINT)
+        node.wait(10)
+    assert out.returncode == 0, out.stderr
+    from aril_ros.adversary import load_adversary
+
+    adversary = load_adversary(tmp_path / "adv.pt", "Swimmer-v5", "sensory")
+    assert adversary.meta["provenance"]["steps"] == 1024
+    assert "over ROS" in adversary.meta["provenance"]["victim_provenance"]["victim"]
