@@ -138,6 +138,7 @@ class AdversaryConfig:
     vf_coef: float = arg(0.5, "value loss weight (Table 3)")
     max_grad_norm: float = arg(0.5, "gradient norm clip")
     hidden: int = arg(64, "width of the two hidden layers")
+    warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
     seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
     threads: int = arg(1, "torch threads")
@@ -159,12 +160,21 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     gen = torch.Generator().manual_seed(cfg.seed)
     n, T, n_pos = cfg.n_envs, cfg.rollout, layout.n_position
 
-    # --- simulators; observation statistics from a short random warm-up fix the input scaling
+    # --- simulators; the input scaling comes from the states the victim visits unattacked (reset
+    # states alone have almost no spread, and would blow the normalised inputs up once it runs)
     sims = [MujocoSim(cfg.env) for _ in range(n)]
     next_seed = cfg.seed * 1_000_003
     obs = np.stack([sim.reset(next_seed + i) for i, sim in enumerate(sims)])
+    visited = [obs.copy()]
+    for _ in range(cfg.warmup):
+        action = victim.act(obs)
+        obs = np.stack([sim.step(a)[0] for sim, a in zip(sims, action)])
+        visited.append(obs.copy())
+    visited = np.concatenate(visited)
+    obs_mean, obs_std = visited.mean(0), visited.std(0) + 1e-3
     next_seed += n
-    obs_mean, obs_std = obs.mean(0), obs.std(0) + 1e-3
+    obs = np.stack([sim.reset(next_seed + i) for i, sim in enumerate(sims)])
+    next_seed += n
     meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim, "n_position": n_pos,
             "hidden": cfg.hidden, "obs_mean": obs_mean.tolist(), "obs_std": obs_std.tolist(), "provenance": {}}
     with torch.random.fork_rng():  # seeded initial weights without touching the global generator
@@ -239,7 +249,10 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
                 loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
                 optimizer.zero_grad()
                 loss.backward()
-                nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+                # clipped apart: the value loss (in units of summed disagreement) would otherwise
+                # dominate the joint norm and shrink every policy step along with it
+                nn.utils.clip_grad_norm_([*net.mean_net.parameters(), net.log_std], cfg.max_grad_norm)
+                nn.utils.clip_grad_norm_(net.value_net.parameters(), cfg.max_grad_norm)
                 optimizer.step()
 
         seconds = time.time() - started
