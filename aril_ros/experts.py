@@ -114,6 +114,10 @@ class ExpertConfig:
     eval_episodes: int = arg(5, "deterministic episodes per evaluation (env seeds 10000...)")
     out: str = arg("", "where to write the expert (default: the bundled aril_ros/data/expert/<env>.pt)")
     threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)")
+    checkpoint: str = arg("", "a folder to save the training state to at every evaluation (resume:= takes it)")
+    keep_buffer: bool = arg(False, "sac: save the replay buffer with the checkpoint too (large; same-machine resumes)")
+    resume: str = arg("", "continue from a checkpoint folder up to steps:= in all (without its replay buffer, "
+                          "SAC refills one from the resumed policy)")
 
 
 def train_expert(cfg: ExpertConfig, log=print) -> Path:
@@ -132,22 +136,49 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
     command = command_line("aril train-expert", cfg)
+    resume = Path(cfg.resume) if cfg.resume else None
+    state = json.loads((resume / "state.json").read_text()) if resume else {}
+    if state and (state["env"], state["algo"]) != (cfg.env, cfg.algo):
+        raise ValueError(f"{resume} holds a {state['algo']} run on {state['env']}, not {cfg.algo} on {cfg.env}")
     if cfg.algo == "sac":
         env = make_gym_env(cfg.env)
-        model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+        if resume:
+            model = SAC.load(resume / "model.zip", env=env, device="cpu")
+            if (resume / "replay_buffer.pkl").exists():
+                model.load_replay_buffer(resume / "replay_buffer.pkl")
+        else:
+            model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
         export = lambda provenance: export_sac_actor(model, cfg.env, provenance)  # noqa: E731
     else:
         env = VecNormalize(DummyVecEnv([lambda: make_gym_env(cfg.env)]), gamma=hyper["gamma"])
-        model = PPO("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
+        if resume:
+            env = VecNormalize.load(resume / "vecnormalize.pkl", env.venv)
+            model = PPO.load(resume / "model.zip", env=env, device="cpu")
+        else:
+            model = PPO("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
         export = lambda provenance: export_ppo_actor(model, env, cfg.env, provenance)  # noqa: E731
-    started = time.time()
-    best = {"mean_return": -np.inf}
+    started = time.time() - state.get("train_seconds", 0.0)
+    best = {"mean_return": state.get("best_mean_return", -np.inf)}
+    commands = state.get("commands", []) + [command]
+
+    def save_checkpoint(step: int) -> None:
+        folder = Path(cfg.checkpoint)
+        folder.mkdir(parents=True, exist_ok=True)
+        model.save(folder / "model.zip")
+        if cfg.algo == "ppo":
+            env.save(folder / "vecnormalize.pkl")
+        elif cfg.keep_buffer:
+            model.save_replay_buffer(folder / "replay_buffer.pkl")
+        (folder / "state.json").write_text(json.dumps({
+            "env": cfg.env, "algo": cfg.algo, "steps": step, "train_seconds": round(time.time() - started, 1),
+            "best_mean_return": best["mean_return"], "commands": commands}, indent=1))
 
     def evaluate(step: int) -> None:
         provenance = {
             "algorithm": f"stable-baselines3 {cfg.algo.upper()}",
             "hyperparameters": hyper,
             "command": command,
+            **({"resumed_from": commands[:-1]} if len(commands) > 1 else {}),
             "steps": step,
             "train_seconds": round(time.time() - started, 1),
             "seed": cfg.seed,
@@ -170,6 +201,8 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             provenance["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": 10_000, "mean_return": mean}
             best.update(mean_return=mean)
             save_policy(policy, out)
+        if cfg.checkpoint:
+            save_checkpoint(step)
 
     class EvalCallback(BaseCallback):
         def _on_step(self) -> bool:
@@ -177,9 +210,9 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
                 evaluate(self.num_timesteps)
             return True
 
-    model.learn(cfg.steps, callback=EvalCallback())
+    model.learn(cfg.steps - model.num_timesteps, callback=EvalCallback(), reset_num_timesteps=not resume)
     if cfg.steps % cfg.eval_every:
-        evaluate(cfg.steps)
+        evaluate(model.num_timesteps)
     env.close()
     log(json.dumps({"env": cfg.env, "out": str(out), "best_eval_return": best["mean_return"],
                     "train_seconds": round(time.time() - started, 1)}), flush=True)

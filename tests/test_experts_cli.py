@@ -100,3 +100,22 @@ def test_help_and_module_entry_point():
     assert out.returncode == 0 and "mode:=" in out.stdout and "episodes:=" in out.stdout
     out = subprocess.run([sys.executable, "-m", "aril_ros", "frobnicate"], capture_output=True, text=True)
     assert out.returncode == 2 and "train-expert" in out.stdout
+
+
+def test_train_expert_resumes_from_a_checkpoint(tmp_path):
+    from aril_ros.experts import ExpertConfig, train_expert
+    from aril_ros.policy import load_policy
+
+    quiet = dict(log=lambda *a, **k: None)
+    common = dict(env="Swimmer-v5", algo="ppo", eval_every=2048, eval_episodes=1, out=str(tmp_path / "e.pt"))
+    train_expert(ExpertConfig(steps=2048, checkpoint=str(tmp_path / "ckpt"), **common), **quiet)
+    state = json.loads((tmp_path / "ckpt" / "state.json").read_text())
+    assert state["steps"] == 2048 and state["algo"] == "ppo"
+    train_expert(ExpertConfig(steps=4096, resume=str(tmp_path / "ckpt"), checkpoint=str(tmp_path / "ckpt"),
+                              **common), **quiet)
+    assert json.loads((tmp_path / "ckpt" / "state.json").read_text())["steps"] == 4096
+    assert len(json.loads((tmp_path / "ckpt" / "state.json").read_text())["commands"]) == 2
+    prov = load_policy(tmp_path / "e.pt").meta.provenance
+    assert prov["steps"] in (2048, 4096)
+    with pytest.raises(ValueError, match="holds a ppo run on Swimmer-v5"):
+        train_expert(ExpertConfig(env="Swimmer-v5", algo="sac", resume=str(tmp_path / "ckpt")), **quiet)
