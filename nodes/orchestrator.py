@@ -142,6 +142,10 @@ class Orchestrator:
         self.record = None if cfg.record == "off" else Path(cfg.record or f"runs/{stamp}-{cfg.env}-{cfg.mode}.mcap")
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
         self.nodes: list[NodeProcess] = []
+        self.interrupted = False
+
+    def _request_stop(self, signum, frame) -> None:
+        self.interrupted = True
 
     # ----------------------------------------------------------------------------------- set-up
     def start_nodes(self, env: dict) -> None:
@@ -161,6 +165,9 @@ class Orchestrator:
         self.nodes = [NodeProcess(name, params, self.log_dir, env) for name, params in specs.items()]
 
     def check_nodes(self) -> None:
+        """Raise if the user interrupted the run or a node died; every wait loop calls this."""
+        if self.interrupted:
+            raise KeyboardInterrupt
         for node in self.nodes:
             code = node.exited()
             if code is not None:
@@ -211,7 +218,9 @@ class Orchestrator:
         recorder = StepRecorder(writer)
         ros = None
         interrupted, reason = False, ""
-        previous_sigterm = signal.signal(signal.SIGTERM, _raise_interrupt)
+        # Ctrl-C / SIGTERM only set a flag, checked between spins: a KeyboardInterrupt raised inside an
+        # rclpy callback can be swallowed by the executor, and the run would go on.
+        previous = {sig: signal.signal(sig, self._request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             self.start_nodes(env)
             ros = GraphClient(recorder)
@@ -227,7 +236,8 @@ class Orchestrator:
             interrupted, reason = True, str(err)
             raise
         finally:
-            signal.signal(signal.SIGTERM, previous_sigterm)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
             for node in self.nodes:
                 node.stop()
             if ros is not None:
@@ -275,10 +285,6 @@ class Orchestrator:
 def _node_path(name: str) -> str:
     """A bundled name as it is; a file as an absolute path, since the nodes run in the project root."""
     return name if name in (*BUNDLED_KINDS, "external") else str(Path(name).resolve())
-
-
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 PRODUCERS = {P.STATE: "simulator", P.PHYSICS: "simulator", P.REWARD: "simulator", P.PERTURBATION: "attacker",
@@ -374,7 +380,7 @@ class GraphClient:
         from nodes.common import READY_QOS, STEP_QOS
 
         self._rclpy = rclpy
-        # no rclpy signal handlers: Ctrl-C must reach the orchestrator as KeyboardInterrupt
+        # no rclpy signal handlers: Ctrl-C must reach the orchestrator's own handler
         rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("orchestrator")
         classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock}
