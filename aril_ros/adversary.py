@@ -91,6 +91,24 @@ class LearnedAttack(Attack):
         return delta
 
 
+class RunningStd:
+    """Running standard deviation of a stream of batches (Chan et al.'s parallel update)."""
+
+    def __init__(self):
+        self.count, self.mean, self.m2 = 0, 0.0, 0.0
+
+    def update(self, batch: np.ndarray) -> None:
+        n, mean = len(batch), float(batch.mean())
+        delta, total = mean - self.mean, self.count + n
+        self.m2 += float(((batch - mean) ** 2).sum()) + delta**2 * self.count * n / total
+        self.mean += delta * n / total
+        self.count = total
+
+    @property
+    def std(self) -> float:
+        return max(float(np.sqrt(self.m2 / max(self.count, 1))), 1e-8)
+
+
 def bundled_adversary_path(env_id: str, mode: str) -> Path:
     """Where the bundled ARIL-A adversary against the bundled learner lives (``attack:=aril_a`` by name)."""
     return DATA_DIR / "adversary" / f"{env_id}-{mode}.pt"
@@ -139,6 +157,7 @@ class AdversaryConfig:
     max_grad_norm: float = arg(0.5, "gradient norm clip")
     hidden: int = arg(64, "width of the two hidden layers")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
+    norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
     seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
     threads: int = arg(1, "torch threads")
@@ -185,7 +204,8 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     buf_obs = torch.zeros(T, n, layout.obs_dim)
     buf_sample, buf_logp = torch.zeros(T, n, n_pos), torch.zeros(T, n)
     buf_reward, buf_value, buf_done = torch.zeros(T, n), torch.zeros(T, n), torch.zeros(T, n)
-    episode_loss, episode_return = np.zeros(n), np.zeros(n)
+    episode_loss, episode_return, discounted = np.zeros(n), np.zeros(n), np.zeros(n)
+    return_scale = RunningStd()
     finished_loss, finished_return = [], []
     started, steps = time.time(), 0
     while steps < cfg.steps:
@@ -203,7 +223,11 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
             action = victim.act(seen)
             loss = ((action - expert.act(obs)) ** 2).sum(axis=1)
             buf_obs[t], buf_sample[t] = obs_t, sample
-            reward = torch.as_tensor(loss, dtype=torch.float32)
+            discounted = discounted * cfg.gamma + loss
+            return_scale.update(discounted)
+            # in units of the return's spread, so the value loss and the clip ranges keep their meaning
+            # whether a step's disagreement is 0.001 or 10
+            reward = torch.as_tensor(loss / return_scale.std if cfg.norm_reward else loss, dtype=torch.float32)
             for i, sim in enumerate(sims):
                 obs[i], env_reward, terminated, truncated = sim.step(action[i])
                 episode_loss[i] += loss[i]
@@ -212,6 +236,7 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
                     with torch.no_grad():
                         reward[i] += cfg.gamma * net.value(torch.as_tensor(obs[i:i + 1], dtype=torch.float32))[0]
                 if terminated or truncated:
+                    discounted[i] = 0.0
                     finished_loss.append(episode_loss[i])
                     finished_return.append(episode_return[i])
                     episode_loss[i] = episode_return[i] = 0.0
