@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import mujoco
 import numpy as np
+from gymnasium.envs.mujoco import MujocoEnv
 
 PAPER_ENVS = ("HalfCheetah-v5", "Ant-v5", "Swimmer-v5")
 HORIZON = 1000  # the paper's episode length for every env
@@ -94,7 +95,7 @@ def make_gym_env(env_id: str, horizon: int = HORIZON) -> gym.Env:
             env = gym.make(env_id, max_episode_steps=horizon)
     except gym.error.Error as err:
         raise EnvLayoutError(f"unknown gymnasium env id {env_id!r}: {err}") from None
-    if not isinstance(env.unwrapped, gym.envs.mujoco.MujocoEnv):
+    if not isinstance(env.unwrapped, MujocoEnv):
         name = type(env.unwrapped).__name__
         env.close()
         raise EnvLayoutError(

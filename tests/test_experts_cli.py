@@ -95,6 +95,12 @@ def test_eval_errors_are_one_clear_line(capsys):
     assert "mode:=clean runs no attack" in capsys.readouterr().err
 
 
+def test_a_non_mujoco_id_is_refused_in_a_fresh_process():
+    # nothing else imported gymnasium's MuJoCo package in that process
+    out = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "env:=CartPole-v1"], capture_output=True, text=True)
+    assert out.returncode == 2 and "not a gymnasium MuJoCo environment" in out.stderr, out.stderr
+
+
 def test_help_and_module_entry_point():
     out = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "mode:=" in out.stdout and "episodes:=" in out.stdout
