@@ -12,9 +12,7 @@ from bootstrap import ensure_venv
 
 
 def main(argv) -> int:
-    from aril_ros.args import ArgumentError, parse_args, usage
-    from aril_ros.envs import EnvLayoutError
-    from aril_ros.policy import PolicyFileError
+    from aril_ros.args import parse_args, usage
     from nodes.orchestrator import GraphConfig, GraphError, Orchestrator
 
     if "-h" in argv or "--help" in argv:
@@ -22,7 +20,7 @@ def main(argv) -> int:
         return 0
     try:
         summary = Orchestrator(parse_args(GraphConfig, argv), log=print).run()
-    except (ArgumentError, EnvLayoutError, PolicyFileError, GraphError) as err:
+    except (ValueError, GraphError) as err:  # bad arguments, ids, files (all ValueErrors) or a failed run
         print(f"run_graph: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -307,6 +307,18 @@ def test_bad_policies_stop_the_graph_with_a_clear_error_and_an_intact_log(behavi
         read_run(tmp_path / "run.mcap")
 
 
+@pytest.mark.parametrize("args, message", [
+    (("attack:=aril_a", "attack_file:=missing.pt"), "missing.pt: no such adversary file"),
+    (("attack:=fgsm", "policy:=external"), "white-box and needs the victim's weights"),
+    (("policy:=missing.pt",), "missing.pt: no such policy file"),
+    (("eps:=abc",), "eps:= takes float"),
+])
+def test_bad_arguments_are_refused_before_any_node_starts(args, message):
+    out = run_graph(*args)
+    assert out.returncode == 1 and message in out.stderr, out.stderr
+    assert "Traceback" not in out.stderr
+
+
 def test_an_external_policy_that_never_appears_is_named(tmp_path):
     _, expert = policy_files(tmp_path, "HalfCheetah-v5")
     out = run_graph("policy:=external", f"expert:={expert}", "connect_timeout:=3", "record:=off")
