@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         run(parse_args(cls, argv[1:]))
-    except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError) as err:
+    except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError, OSError) as err:
         print(f"aril {argv[0]}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -21,7 +21,7 @@ from aril_ros.protocol import StepTag
 from nodes.common import STEP_QOS, joint_state, step_header
 
 
-class RemotePolicyError(RuntimeError):
+class RemotePolicyError(ConnectionError):
     """No policy node answers, or it stopped answering."""
 
 
