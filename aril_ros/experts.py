@@ -28,7 +28,9 @@ from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-BUNDLED_KINDS = ("expert", "bc")
+BUNDLED_KINDS = ("expert", "bc", "bundled")
+# "bundled" is the default bundled policy: the expert until a DAgger learner is bundled for every env
+BUNDLED_DEFAULT = "expert"
 
 # rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
 HYPERPARAMETERS = {
@@ -44,7 +46,9 @@ def bundled_path(kind: str, env_id: str) -> Path:
 
 
 def resolve_policy(name_or_path: str, env_id: str) -> MLPPolicy:
-    """A bundled name (``expert``) or a policy file path, checked against ``env_id``."""
+    """A bundled name (``expert``, ``bc``, ``bundled``) or a policy file path, checked against ``env_id``."""
+    if name_or_path == "bundled":
+        name_or_path = BUNDLED_DEFAULT
     if name_or_path in BUNDLED_KINDS:
         path = bundled_path(name_or_path, env_id)
         if not path.is_file():

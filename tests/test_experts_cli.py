@@ -53,6 +53,11 @@ def test_bundled_experts_load_with_provenance(env_id):
     assert len(expert.meta.hidden) == 2  # the paper: two hidden layers
 
 
+def test_bundled_is_the_default_bundled_policy():
+    np.testing.assert_array_equal(resolve_policy("bundled", "Swimmer-v5").act(np.ones(8)),
+                                  resolve_policy("expert", "Swimmer-v5").act(np.ones(8)))
+
+
 def test_resolve_policy_errors():
     with pytest.raises(PolicyFileError, match="no bundled expert for Hopper-v5"):
         resolve_policy("expert", "Hopper-v5")
