@@ -158,6 +158,8 @@ class AdversaryConfig:
     hidden: int = arg(64, "width of the two hidden layers")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
     norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
+    baseline: bool = arg(True, "reward the disagreement minus the unperturbed one (a control variate; with gamma > 0 "
+                              "it drops the pull towards states the victim already gets wrong)")
     seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
     threads: int = arg(1, "torch threads")
@@ -221,13 +223,18 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
             delta[:, :n_pos] = sample.clamp(-cfg.eps, cfg.eps).double().numpy()
             seen = apply_perturbation(cfg.mode, sims, obs, delta)
             action = victim.act(seen)
-            loss = ((action - expert.act(obs)) ** 2).sum(axis=1)
+            label = expert.act(obs)
+            loss = ((action - label) ** 2).sum(axis=1)
+            # the perturbation moves the disagreement by little next to how much it varies from state to
+            # state; subtracting the unperturbed disagreement (independent of this step's delta) is a
+            # control variate for the immediate term
+            gain = loss - ((victim.act(obs) - label) ** 2).sum(axis=1) if cfg.baseline else loss
             buf_obs[t], buf_sample[t] = obs_t, sample
-            discounted = discounted * cfg.gamma + loss
+            discounted = discounted * cfg.gamma + gain
             return_scale.update(discounted)
             # in units of the return's spread, so the value loss and the clip ranges keep their meaning
             # whether a step's disagreement is 0.001 or 10
-            reward = torch.as_tensor(loss / return_scale.std if cfg.norm_reward else loss, dtype=torch.float32)
+            reward = torch.as_tensor(gain / return_scale.std if cfg.norm_reward else gain, dtype=torch.float32)
             for i, sim in enumerate(sims):
                 obs[i], env_reward, terminated, truncated = sim.step(action[i])
                 episode_loss[i] += loss[i]
