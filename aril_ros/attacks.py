@@ -108,6 +108,14 @@ ATTACK_NAMES = (*ATTACKS, "aril_a")
 WHITE_BOX = ("fgsm", "fgsm_k")
 
 
+def attack_for_mode(mode: str, attack: str = "") -> str:
+    """The attack a mode runs: ``attack``, or when unset none (clean) or random; clean runs no other."""
+    name = attack or ("none" if mode == "clean" else "random")
+    if mode == "clean" and name != "none":
+        raise ValueError(f"mode:=clean runs no attack, got attack:={name}")
+    return name
+
+
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .args import ArgumentError, arg
-from .attacks import ATTACK_NAMES, make_attack
+from .args import arg
+from .attacks import ATTACK_NAMES, attack_for_mode, make_attack
 from .envs import layout_of
 from .experts import resolve_policy
 from .rollout import MODES, RolloutEngine
@@ -37,12 +37,10 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     """Run ``cfg.episodes`` episodes; ``progress(episode, return, expert_loss, steps, max_delta)`` is
     called as each ends. Returns the summary (mean/std return, mean expert loss, per-episode returns)."""
     torch.set_num_threads(cfg.threads)
-    attack_name = cfg.attack or ("none" if cfg.mode == "clean" else "random")
+    attack_name = attack_for_mode(cfg.mode, cfg.attack)
     layout = layout_of(cfg.env)  # an unknown or non-MuJoCo id is the first thing to report
     policy = resolve_policy(cfg.policy, cfg.env)
     expert = resolve_policy(cfg.expert, cfg.env)
-    if cfg.mode == "clean" and attack_name != "none":
-        raise ArgumentError(f"mode:=clean runs no attack, got attack:={attack_name}")
     attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0, victim=policy,
                          expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,
                          adversary=cfg.attack_file, mode=cfg.mode)

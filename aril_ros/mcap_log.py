@@ -183,8 +183,6 @@ def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
                     order.append(tag)
                 steps[tag][topic.lstrip("/")] = decoded
                 steps[tag]["stamp"] = message.log_time
-        except RunLogError:
-            raise
         except Exception as err:
             raise RunLogError(f"{path}: damaged message data ({type(err).__name__}: {err})") from None
     return _assemble(path, metadata["aril_run"], end, order, steps, clock_by_stamp)

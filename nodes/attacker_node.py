@@ -20,7 +20,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
-from aril_ros.attacks import WHITE_BOX, make_attack
+from aril_ros.attacks import WHITE_BOX, attack_for_mode, make_attack
 from aril_ros.experts import resolve_policy
 from aril_ros.envs import layout_of, perturbed_state
 from aril_ros.protocol import StepTag
@@ -37,9 +37,7 @@ class AttackerNode(Node):
         self.mode = declared(self, "mode", "sensory")
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        attack = declared(self, "attack", "none" if self.mode == "clean" else "random")
-        if self.mode == "clean" and attack != "none":
-            raise ValueError(f"mode clean runs no attack, got attack {attack!r}")
+        attack = attack_for_mode(self.mode, declared(self, "attack", ""))
         victim_name, expert_name = declared(self, "victim", ""), declared(self, "expert", "expert")
         white_box = attack in WHITE_BOX
         if white_box and not victim_name:

@@ -26,7 +26,7 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.args import arg
-from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, make_attack
+from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, attack_for_mode, make_attack
 from aril_ros.envs import layout_of
 from aril_ros.experts import BUNDLED_KINDS, git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
@@ -124,9 +124,7 @@ class Orchestrator:
         self.cfg, self.log = cfg, log
         if cfg.mode not in MODES:
             raise GraphError(f"mode:= must be one of {', '.join(MODES)}, got {cfg.mode!r}")
-        self.attack = cfg.attack or ("none" if cfg.mode == "clean" else "random")
-        if cfg.mode == "clean" and self.attack != "none":
-            raise GraphError(f"mode:=clean runs no attack, got attack:={self.attack}")
+        self.attack = attack_for_mode(cfg.mode, cfg.attack)
         if self.attack not in ATTACK_NAMES:
             raise GraphError(f"attack:= must be one of {', '.join(ATTACK_NAMES)}, got {self.attack!r}")
         if self.attack in WHITE_BOX and cfg.policy == "external":
