@@ -28,7 +28,7 @@ from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-BUNDLED_KINDS = ("expert", "bc", "bundled")
+BUNDLED_KINDS = ("expert", "bc", "dagger", "bundled")
 # "bundled" is the default bundled policy: the expert until a DAgger learner is bundled for every env
 BUNDLED_DEFAULT = "expert"
 

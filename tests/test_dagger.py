@@ -1,0 +1,84 @@
+import json
+
+import numpy as np
+import pytest
+
+from aril_ros.dagger import DaggerConfig, train_dagger
+from aril_ros.policy import load_policy
+
+
+def quiet(*args, **kwargs):
+    pass
+
+
+def small(tmp_path, **overrides):
+    fields = dict(env="Swimmer-v5", rounds=2, episodes=1, epochs=2, eval_episodes=1, run_dir=str(tmp_path / "run"),
+                  out=str(tmp_path / "out.pt"))
+    return DaggerConfig(**{**fields, **overrides})
+
+
+def test_rounds_aggregate_the_learners_own_states_and_select_the_best(tmp_path):
+    out = train_dagger(small(tmp_path), log=quiet)
+    state = json.loads((tmp_path / "run" / "state.json").read_text())
+    assert [r["round"] for r in state["rounds"]] == [0, 1, 2]
+    assert [r.get("samples") for r in state["rounds"]] == [1000, 2000, None]  # the last round only evaluates
+    with np.load(tmp_path / "run" / "data.npz") as data:
+        assert list(np.bincount(data["round"])) == [1000, 1000]
+        # round 1's observations are the states pi_1 visited, not the expert's
+        assert not np.allclose(data["obs"][1000:1100], data["obs"][:100])
+    policy = load_policy(out, "Swimmer-v5")
+    best = max(state["rounds"][1:], key=lambda r: r["return"])
+    assert policy.meta.provenance["selected"] == f"pi_{best['round']}"
+    assert policy.meta.provenance["algorithm"] == "dagger"
+    assert policy.meta.provenance["command"].startswith("aril train-dagger env:=Swimmer-v5")
+
+
+def test_an_interrupted_run_resumes_from_its_last_round_and_ends_as_an_uninterrupted_one(tmp_path):
+    train_dagger(small(tmp_path / "a"), log=quiet)
+
+    def interrupt_after_round_1(message, **kwargs):
+        if "round 1:" in message:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_dagger(small(tmp_path / "b"), log=interrupt_after_round_1)
+    messages = []
+    train_dagger(small(tmp_path / "b"), log=lambda m, **k: messages.append(m))
+    assert messages[0].endswith("resuming after round 1")
+    assert not any("round 0:" in m or "round 1:" in m for m in messages)
+    for name in ("obs", "expert_action", "round"):
+        with np.load(tmp_path / "a" / "run" / "data.npz") as a, np.load(tmp_path / "b" / "run" / "data.npz") as b:
+            np.testing.assert_array_equal(a[name], b[name])
+    a = load_policy(tmp_path / "a" / "out.pt")
+    b = load_policy(tmp_path / "b" / "out.pt")
+    obs = np.random.default_rng(0).standard_normal((5, 8))
+    np.testing.assert_array_equal(a.act(obs), b.act(obs))
+
+
+def test_more_rounds_extend_a_finished_run(tmp_path):
+    train_dagger(small(tmp_path), log=quiet)
+    train_dagger(small(tmp_path, rounds=3), log=quiet)
+    state = json.loads((tmp_path / "run" / "state.json").read_text())
+    assert [r.get("samples") for r in state["rounds"]] == [1000, 2000, 3000, None]
+
+
+def test_a_run_directory_refuses_other_settings(tmp_path):
+    train_dagger(small(tmp_path), log=quiet)
+    with pytest.raises(ValueError, match=r"other settings \(episodes\)"):
+        train_dagger(small(tmp_path, episodes=2), log=quiet)
+
+
+def test_domain_randomisation_collects_through_random_perturbations(tmp_path):
+    train_dagger(small(tmp_path, mode="sensory", attack="random", eps=0.05), log=quiet)
+    state = json.loads((tmp_path / "run" / "state.json").read_text())
+    assert "clean_return" in state["rounds"][1]
+    policy = load_policy(tmp_path / "out.pt")
+    assert policy.meta.provenance["algorithm"] == "dr"
+    assert "sensory, random eps 0.05" in policy.meta.provenance["selection"]
+
+
+def test_bad_arguments_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="needs eps"):
+        train_dagger(small(tmp_path, mode="sensory", attack="random"), log=quiet)
+    with pytest.raises(ValueError, match="rounds"):
+        train_dagger(small(tmp_path, rounds=1), log=quiet)
