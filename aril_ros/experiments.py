@@ -22,7 +22,7 @@ from .evaluation import EvalConfig, evaluate
 from .experts import git_revision
 
 PAPER_ENVS_ARG = "HalfCheetah-v5,Ant-v5,Swimmer-v5"
-BUNDLED_LEARNER = "bc"  # the victim of the attack tables until a DAgger learner is bundled
+BUNDLED_LEARNER = "dagger"  # the victim of the attack tables (the paper attacks DAgger learners)
 
 
 def _split(text: str) -> list[str]:
@@ -49,7 +49,7 @@ class CalibrationConfig:
     modes: str = arg("sensory,physical", "comma-separated modes")
     policy: str = arg(BUNDLED_LEARNER, "the victim (the learner under attack): a bundled name or a policy file")
     expert: str = arg("expert", "the expert")
-    grid: str = arg("0.005,0.01,0.02,0.05,0.1,0.2", "comma-separated eps values to try")
+    grid: str = arg("0.002,0.005,0.01,0.02,0.05,0.1,0.2", "comma-separated eps values to try")
     max_drop: float = arg(0.4, "the largest tolerated FGSM drop from clean return (the paper: 40%)")
     episodes: int = arg(10, "deterministic episodes per cell")
     seed: int = arg(1000, "env seed of the first episode")
@@ -57,9 +57,27 @@ class CalibrationConfig:
     out: str = arg("results/eps_calibration", "output path without suffix (.json and .md are written)")
 
 
+def _merge(out: str, key, fresh: list[dict], same_run) -> list[dict]:
+    """``fresh`` rows plus the rows of an existing ``out.json`` that ``same_run`` accepts and ``fresh``
+    does not replace (same ``key``), so a table can be filled in env by env."""
+    path = Path(out).with_suffix(".json")
+    old = json.loads(path.read_text()) if path.exists() else None
+    kept = [] if old is None or not same_run(old) else old["rows"]
+    replaced = {key(r) for r in fresh}
+    return sorted([r for r in kept if key(r) not in replaced] + fresh, key=lambda r: _env_order(r["env"]) + key(r)[1:])
+
+
+def _env_order(env: str) -> tuple:
+    paper = _split(PAPER_ENVS_ARG)
+    return (paper.index(env) if env in paper else len(paper), env)
+
+
 def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
-    rows = []
+    """Sweep the grid for each env and mode; rows of other envs/modes already in ``cfg.out`` (same
+    victim and rule) are kept, each with the command that made it."""
+    fresh = []
     grid = sorted(float(e) for e in _split(cfg.grid))
+    stamp = _stamp("aril calibrate-eps", cfg)
     for env in _split(cfg.envs):
         common = dict(env=env, policy=cfg.policy, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed,
                       horizon=cfg.horizon)
@@ -79,22 +97,23 @@ def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
                 if s["drop"] > cfg.max_drop:
                     break
                 allowed.append(s["eps"])
-            rows.append({"env": env, "mode": mode, "clean": clean, "sweep": sweep,
-                         "chosen_eps": allowed[-1] if allowed else grid[0],
-                         "rule": f"largest eps before FGSM first drops the return by more than {cfg.max_drop:.0%}"
-                         if allowed else "even the smallest eps broke the rule: the smallest tried"})
-    payload = {**_stamp("aril calibrate-eps", cfg), "victim": cfg.policy, "episodes": cfg.episodes,
-               "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}", "rows": rows}
+            fresh.append({"env": env, "mode": mode, "clean": clean, "sweep": sweep,
+                          "chosen_eps": allowed[-1] if allowed else grid[0],
+                          "rule": f"largest eps before FGSM first drops the return by more than {cfg.max_drop:.0%}"
+                          if allowed else "even the smallest eps broke the rule: the smallest tried",
+                          "episodes": cfg.episodes, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}", **stamp})
+    rows = _merge(cfg.out, lambda r: (r["env"], r["mode"]), fresh,
+                  lambda old: old.get("victim") == cfg.policy and old.get("max_drop") == cfg.max_drop)
+    payload = {"victim": cfg.policy, "expert": cfg.expert, "max_drop": cfg.max_drop, "rows": rows}
     lines = [f"# eps calibration (victim: {cfg.policy})", "",
-             f"FGSM return per eps over {cfg.episodes} episodes (env seeds {payload['seeds']}); chosen: "
-             f"the largest eps before FGSM first costs more than {cfg.max_drop:.0%} of the clean return.", "",
-             f"`{payload['command']}` "
-             f"(git {payload['git_revision']})", "",
-             "| env | mode | clean | " + " | ".join(f"eps {e:g}" for e in grid) + " | chosen eps |",
-             "|---|---|---|" + "---|" * len(grid) + "---|"]
+             f"FGSM return per eps (mean over deterministic episodes, drop from clean); chosen: the largest eps "
+             f"before FGSM first costs more than {cfg.max_drop:.0%} of the clean return. Each row's command is in "
+             "the JSON.", "",
+             "| env | mode | clean | FGSM return per eps | chosen eps | episodes (seeds) |", "|---|---|---|---|---|---|"]
     for r in rows:
-        cells = " | ".join(f"{s['mean']:.0f} ({-100 * s['drop']:+.0f}%)" for s in r["sweep"])
-        lines.append(f"| {r['env']} | {r['mode']} | {r['clean']:.0f} | {cells} | **{r['chosen_eps']:g}** |")
+        cells = ", ".join(f"{s['eps']:g}: {s['mean']:.0f} ({-100 * s['drop']:+.0f}%)" for s in r["sweep"])
+        lines.append(f"| {r['env']} | {r['mode']} | {r['clean']:.0f} | {cells} | **{r['chosen_eps']:g}** | "
+                     f"{r['episodes']} ({r['seeds']}) |")
     _write(cfg.out, payload, "\n".join(lines) + "\n")
     return payload
 
@@ -131,9 +150,11 @@ ROW_NAMES = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGS
 
 
 def attack_table(cfg: AttackTableConfig, log=print) -> dict:
-    envs = _split(cfg.envs)
-    cells: dict[str, dict[str, dict]] = {}
-    for env in envs:
+    """Fill the Adversary rows for ``cfg.envs``; envs already in the output file (same mode and
+    victim) are kept, every cell with the command that made it."""
+    stamp = _stamp("aril attack-table", cfg)
+    fresh = []
+    for env in _split(cfg.envs):
         eps = chosen_eps(cfg.calibration, env, cfg.mode)
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (bundled_adversary_path(env, cfg.mode) if cfg.policy == BUNDLED_LEARNER
@@ -141,29 +162,35 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         if cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
             train_adversary(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                             steps=cfg.adversary_steps, out=str(adversary)), log=log)
-        cells[env] = {}
+        cells = {}
         for attack in ATTACK_ROWS:
             result = evaluate(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                          mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                          eps=0.0 if attack == "none" else eps, k=cfg.k,
                                          attack_file=str(adversary) if attack == "aril_a" else "",
                                          episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon))
-            clean = cells[env]["none"]["mean"] if attack != "none" else result["mean_return"]
-            cells[env][attack] = {"mean": result["mean_return"], "std": result["std_return"],
-                                  "episodes": cfg.episodes, "eps": result["eps"],
-                                  "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
-                                  "mean_expert_loss": result["mean_expert_loss"],
-                                  "drop": round(1.0 - result["mean_return"] / clean, 4) if clean else 0.0}
+            clean = cells["none"]["mean"] if attack != "none" else result["mean_return"]
+            cells[attack] = {"mean": result["mean_return"], "std": result["std_return"],
+                             "episodes": cfg.episodes, "eps": result["eps"],
+                             "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
+                             "mean_expert_loss": result["mean_expert_loss"],
+                             "drop": round(1.0 - result["mean_return"] / clean, 4) if clean else 0.0, **stamp}
+            if attack == "aril_a":
+                cells[attack]["adversary"] = load_adversary(adversary).meta["provenance"]
             log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[attack]}: {result['mean_return']:.1f} ± "
                 f"{result['std_return']:.1f}", flush=True)
-    payload = {**_stamp("aril attack-table", cfg), "mode": cfg.mode, "victim": cfg.policy, "cells": cells,
+        fresh.append({"env": env, "cells": cells})
+    rows = _merge(cfg.out or f"results/attacks_{cfg.mode}", lambda r: (r["env"],), fresh,
+                  lambda old: (old.get("mode"), old.get("victim")) == (cfg.mode, cfg.policy))
+    envs = [r["env"] for r in rows]
+    cells = {r["env"]: r["cells"] for r in rows}
+    payload = {"mode": cfg.mode, "victim": cfg.policy, "rows": rows,
                "overall_drop": {a: round(sum(cells[e][a]["drop"] for e in envs) / len(envs), 4)
                                 for a in ATTACK_ROWS}}
     table = "Table 1" if cfg.mode == "sensory" else "Table 2"
     lines = [f"# {table} ({cfg.mode} attacks), Adversary rows — victim: {cfg.policy}", "",
-             f"Return, mean ± std over {cfg.episodes} deterministic episodes (env seeds "
-             f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}), and the drop from clean.", "",
-             f"`{payload['command']}` (git {payload['git_revision']})", "",
+             "Return, mean ± std over deterministic episodes, and the drop from clean; each cell's episodes, "
+             "seeds and command are in the JSON.", "",
              "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs) + " | overall |",
              "|---|" + "---|" * len(envs) + "---|"]
     for attack in ATTACK_ROWS:

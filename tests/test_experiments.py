@@ -19,11 +19,27 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                            expert=str(expert), calibration=str(tmp_path / "cal.json"),
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
                                            adversary_dir=str(tmp_path), out=str(tmp_path / "attacks")), **QUIET)
-    cells = table["cells"]["Swimmer-v5"]
+    cells = table["rows"][0]["cells"]
     assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "aril_a"}
     assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
     assert cells["fgsm"]["eps"] == 0.5 and cells["none"]["eps"] == 0.0
     saved = json.loads((tmp_path / "attacks.json").read_text())
-    assert saved["command"].startswith("aril attack-table mode:=sensory")
+    assert all(c["command"].startswith("aril attack-table mode:=sensory")
+               for c in saved["rows"][0]["cells"].values())
+    assert cells["aril_a"]["adversary"]["steps"] >= 2000
     assert "ARIL-A" in (tmp_path / "attacks.md").read_text()
     assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
+
+
+def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
+    victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
+    common = dict(envs="Swimmer-v5", policy=str(victim), expert=str(victim), grid="0.01", episodes=1, horizon=20,
+                  out=str(tmp_path / "cal"))
+    calibrate_eps(CalibrationConfig(modes="sensory", **common), **QUIET)
+    payload = calibrate_eps(CalibrationConfig(modes="physical", **common), **QUIET)
+    assert [(r["env"], r["mode"]) for r in payload["rows"]] == [("Swimmer-v5", "physical"), ("Swimmer-v5", "sensory")]
+    assert "modes:=sensory" in payload["rows"][1]["command"]
+    # another victim starts a new table instead of mixing two victims' rows
+    other = save_policy(make_policy("Swimmer-v5", seed=3), tmp_path / "other.pt")
+    payload = calibrate_eps(CalibrationConfig(modes="sensory", **{**common, "policy": str(other)}), **QUIET)
+    assert len(payload["rows"]) == 1
