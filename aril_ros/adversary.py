@@ -158,8 +158,8 @@ class AdversaryConfig:
     hidden: int = arg(64, "width of the two hidden layers")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
     norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
-    baseline: bool = arg(True, "reward the disagreement minus the unperturbed one (a control variate; with gamma > 0 "
-                              "it drops the pull towards states the victim already gets wrong)")
+    baseline: bool = arg(True, "value = the victim's unperturbed disagreement at the state (computed exactly) + a "
+                              "learned remainder, instead of all learned (a control variate: the objective is the same)")
     seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
     threads: int = arg(1, "torch threads")
@@ -206,6 +206,14 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     buf_obs = torch.zeros(T, n, layout.obs_dim)
     buf_sample, buf_logp = torch.zeros(T, n, n_pos), torch.zeros(T, n)
     buf_reward, buf_value, buf_done = torch.zeros(T, n), torch.zeros(T, n), torch.zeros(T, n)
+    buf_base = torch.zeros(T, n)
+
+    def unperturbed_loss(states: np.ndarray) -> np.ndarray:
+        """The disagreement the victim would have without the attack: the exact part of the value."""
+        if not cfg.baseline:
+            return np.zeros(len(states))
+        return ((victim.act(states) - expert.act(states)) ** 2).sum(axis=1)
+
     episode_loss, episode_return, discounted = np.zeros(n), np.zeros(n), np.zeros(n)
     return_scale = RunningStd()
     finished_loss, finished_return = [], []
@@ -218,30 +226,34 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
                 dist = net.distribution(obs_t)
                 sample = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=gen)
                 buf_logp[t] = dist.log_prob(sample).sum(-1)
-                buf_value[t] = net.value(obs_t)
+                remainder = net.value(obs_t)
             delta = np.zeros_like(obs)
             delta[:, :n_pos] = sample.clamp(-cfg.eps, cfg.eps).double().numpy()
             seen = apply_perturbation(cfg.mode, sims, obs, delta)
             action = victim.act(seen)
-            label = expert.act(obs)
-            loss = ((action - label) ** 2).sum(axis=1)
+            loss = ((action - expert.act(obs)) ** 2).sum(axis=1)
             # the perturbation moves the disagreement by little next to how much it varies from state to
-            # state; subtracting the unperturbed disagreement (independent of this step's delta) is a
-            # control variate for the immediate term
-            gain = loss - ((victim.act(obs) - label) ** 2).sum(axis=1) if cfg.baseline else loss
+            # state, more than a learned value can follow: the unperturbed disagreement, known exactly for
+            # every visited state, carries that part of the value
+            base = unperturbed_loss(obs)
             buf_obs[t], buf_sample[t] = obs_t, sample
-            discounted = discounted * cfg.gamma + gain
+            discounted = discounted * cfg.gamma + loss
             return_scale.update(discounted)
             # in units of the return's spread, so the value loss and the clip ranges keep their meaning
             # whether a step's disagreement is 0.001 or 10
-            reward = torch.as_tensor(gain / return_scale.std if cfg.norm_reward else gain, dtype=torch.float32)
+            scale = return_scale.std if cfg.norm_reward else 1.0
+            reward = torch.as_tensor(loss / scale, dtype=torch.float32)
+            buf_base[t] = torch.as_tensor(base / scale, dtype=torch.float32)
+            buf_value[t] = remainder + buf_base[t]
             for i, sim in enumerate(sims):
                 obs[i], env_reward, terminated, truncated = sim.step(action[i])
                 episode_loss[i] += loss[i]
                 episode_return[i] += env_reward
                 if truncated and not terminated:  # time limit: bootstrap from the state it stopped in
                     with torch.no_grad():
-                        reward[i] += cfg.gamma * net.value(torch.as_tensor(obs[i:i + 1], dtype=torch.float32))[0]
+                        stopped = obs[i:i + 1]
+                        value = net.value(torch.as_tensor(stopped, dtype=torch.float32))[0]
+                        reward[i] += cfg.gamma * (value + float(unperturbed_loss(stopped)[0]) / scale)
                 if terminated or truncated:
                     discounted[i] = 0.0
                     finished_loss.append(episode_loss[i])
@@ -256,6 +268,7 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
         # --- generalised advantage estimation
         with torch.no_grad():
             next_value = net.value(torch.as_tensor(obs, dtype=torch.float32))
+            next_value += torch.as_tensor(unperturbed_loss(obs) / scale, dtype=torch.float32)
         advantages = torch.zeros(T, n)
         last = torch.zeros(n)
         for t in reversed(range(T)):
@@ -264,12 +277,12 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
             td = buf_reward[t] + cfg.gamma * value_after * not_done - buf_value[t]
             last = td + cfg.gamma * cfg.gae_lambda * not_done * last
             advantages[t] = last
-        returns = advantages + buf_value
+        remainder_target = advantages + buf_value - buf_base
 
         # --- clipped PPO updates
         flat = lambda x: x.reshape(T * n, *x.shape[2:])  # noqa: E731
         b_obs, b_sample, b_logp = flat(buf_obs), flat(buf_sample), flat(buf_logp)
-        b_adv, b_ret = flat(advantages), flat(returns)
+        b_adv, b_ret = flat(advantages), flat(remainder_target)
         for _ in range(cfg.epochs):
             for idx in torch.randperm(T * n, generator=gen).split(cfg.minibatch):
                 dist = net.distribution(b_obs[idx])
