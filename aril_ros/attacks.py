@@ -11,6 +11,9 @@ episode's perturbations do not depend on how many episodes run side by side.
 """
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from .envs import ObsLayout
@@ -114,6 +117,21 @@ def attack_for_mode(mode: str, attack: str = "") -> str:
     if mode == "clean" and name != "none":
         raise ValueError(f"mode:=clean runs no attack, got attack:={name}")
     return name
+
+
+CALIBRATION = Path(__file__).resolve().parents[1] / "results" / "eps_calibration.json"
+
+
+def calibrated_eps(env_id: str, mode: str, calibration: str | Path = CALIBRATION) -> float:
+    """The eps chosen for ``env_id`` and ``mode`` by ``aril calibrate-eps`` (the paper's 40% FGSM rule)."""
+    path = Path(calibration)
+    if not path.is_file():
+        raise ValueError(f"no eps calibration at {path}: run aril calibrate-eps, or pass eps:=")
+    for row in json.loads(path.read_text())["rows"]:
+        if (row["env"], row["mode"]) == (env_id, mode):
+            return float(row["chosen_eps"])
+    raise ValueError(f"{path} has no eps for {env_id} {mode}: run aril calibrate-eps envs:={env_id} modes:={mode}, "
+                     "or pass eps:=")
 
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,

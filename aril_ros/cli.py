@@ -14,7 +14,7 @@ from pathlib import Path
 
 from .adversary import AdversaryConfig, train_adversary
 from .args import ArgumentError, arg, parse_args, usage
-from .dagger import DaggerConfig, train_dagger
+from .dagger import LearnerConfig, train_learner
 from .envs import EnvLayoutError
 from .evaluation import EvalConfig, evaluate
 from .experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
@@ -80,8 +80,8 @@ COMMANDS = {
     "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
     "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
     "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
-    "train-dagger": (DaggerConfig, train_dagger,
-                     "DAgger by rounds; with an attack in the loop DR (attack:=random) or ARIL (attack:=aril_a)."),
+    "train-learner": (LearnerConfig, train_learner,
+                      "Imitate by rounds: algorithm:=dagger, dart, dr (domain randomisation) or aril (Algorithm 1)."),
     "train-adversary": (AdversaryConfig, run_train_adversary,
                         "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
     "calibrate-eps": (CalibrationConfig, calibrate_eps,

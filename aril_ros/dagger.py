@@ -32,42 +32,64 @@ import torch
 
 from .adversary import AdversaryConfig, train_adversary
 from .args import arg, command_line
-from .attacks import ATTACK_NAMES, attack_for_mode, make_attack
+from .attacks import calibrated_eps, make_attack
 from .dataset import DaggerDataset
 from .envs import layout_of
 from .experts import git_revision, resolve_policy
 from .learners import fit_policy
 from .policy import load_policy, save_policy
-from .rollout import MODES, RolloutEngine
+from .rollout import RolloutEngine
+
+
+ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 
 
 @dataclass
-class DaggerConfig:
-    """Arguments of ``aril train-dagger``."""
+class LearnerConfig:
+    """Arguments of ``aril train-learner``."""
 
+    algorithm: str = arg("dagger", "dagger: the learner collects | dart: the expert collects with Gaussian action noise "
+                                   "sized by the learner's error (Laskey et al. 2017) | dr: dagger under random +-eps "
+                                   "perturbations (domain randomisation) | aril: dagger under ARIL-A, retrained against "
+                                   "each learner (the paper's Algorithm 1)")
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the expert that labels the true states: a bundled name or a policy file")
-    mode: str = arg("clean", f"how the learner runs while collecting: {', '.join(MODES)}")
-    attack: str = arg("", f"attack in the loop ({', '.join(ATTACK_NAMES)}; default none when clean, else random): "
-                          "random is domain randomisation, aril_a is ARIL")
-    eps: float = arg(0.0, "the attack's budget (0 when clean)")
-    rounds: int = arg(10, "rounds, including round 0 (expert demonstrations)")
+    mode: str = arg("sensory", "dr and aril: sensory or physical perturbations (dagger and dart collect clean)")
+    eps: float = arg(0.0, "dr and aril: the budget (0: the calibrated eps for env and mode, results/eps_calibration.json)")
+    rounds: int = arg(10, "rounds of collecting and refitting after round 0 (expert demonstrations)")
     episodes: int = arg(5, "episodes collected per round (1000 steps each)")
     hidden: int = arg(64, "width of the learner's two hidden layers")
     epochs: int = arg(20, "passes over the aggregated data per fit")
     lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
     batch: int = arg(256, "minibatch size")
-    adversary_steps: int = arg(300_000, "ARIL: PPO steps of each round's adversary")
-    eval_episodes: int = arg(5, "episodes of each round's evaluation (env seeds 500000...)")
-    seed: int = arg(0, "seed of the collection (env seeds seed*100000 + round*1000 + i), fits and adversaries")
-    run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>-<mode>); an existing one is resumed")
-    out: str = arg("", "where to write the selected policy (default runs/<algorithm>-<env>-<mode>.pt)")
+    adversary_steps: int = arg(300_000, "aril: PPO steps of each round's adversary")
+    eval_episodes: int = arg(5, "dr and aril: episodes of each learner's clean evaluation (env seeds 500000...)")
+    seed: int = arg(0, "seed of the collection (env seeds seed*100000 + round*1000 + i), fits, noise and adversaries")
+    run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>[-<mode>]); an existing one is resumed")
+    out: str = arg("", "where to write the selected policy (default runs/<algorithm>-<env>[-<mode>].pt)")
     threads: int = arg(1, "torch threads")
 
-    @property
-    def algorithm(self) -> str:
-        return {"none": "dagger", "random": "dr", "aril_a": "aril"}.get(attack_for_mode(self.mode, self.attack),
-                                                                     f"dagger-{self.attack}")
+
+class NoisyPolicy:
+    """DART's collector: ``policy``'s action plus Gaussian noise ``N(0, cov)``, clipped to the action bounds."""
+
+    def __init__(self, policy, cov: np.ndarray, rng: np.random.Generator):
+        self.policy, self.meta, self.rng = policy, policy.meta, rng
+        self.chol = np.linalg.cholesky(cov + 1e-9 * np.eye(len(cov)))
+        self.low, self.high = np.asarray(policy.meta.action_low), np.asarray(policy.meta.action_high)
+
+    def check_env(self, *args) -> None:
+        self.policy.check_env(*args)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        action = self.policy.act(obs)
+        return np.clip(action + self.rng.standard_normal(action.shape) @ self.chol.T, self.low, self.high)
+
+
+def learner_error_covariance(policy, data: DaggerDataset) -> np.ndarray:
+    """DART's noise: the second moment of the learner's error on the expert's states, E[(pi(s) - pi_e(s))(...)^T]."""
+    error = policy.act(data.obs) - data.expert_action
+    return error.T @ error / len(error)
 
 
 EVAL_SEED = 500_000
@@ -94,21 +116,30 @@ def _save_data(path: Path, data: DaggerDataset, rounds: np.ndarray) -> None:
     _save_atomic(path, write)
 
 
-def train_dagger(cfg: DaggerConfig, log=print) -> Path:
+def train_learner(cfg: LearnerConfig, log=print) -> Path:
     """Run (or resume) the rounds; write the selected policy to ``cfg.out`` and return its path."""
-    attack_name = attack_for_mode(cfg.mode, cfg.attack)
-    if attack_name != "none" and not cfg.eps > 0:
-        raise ValueError(f"attack {attack_name} needs eps:= > 0")
-    if cfg.rounds < 2:
-        raise ValueError("rounds:= must be >= 2 (round 0 is the expert's demonstrations)")
+    if cfg.algorithm not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {cfg.algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
+    attack_name = ALGORITHMS[cfg.algorithm]
+    if attack_name != "none":
+        if cfg.mode not in ("sensory", "physical"):
+            raise ValueError(f"{cfg.algorithm} needs mode:=sensory or mode:=physical, got {cfg.mode!r}")
+        if cfg.eps == 0:
+            cfg = dataclasses.replace(cfg, eps=calibrated_eps(cfg.env, cfg.mode))
+        if not cfg.eps > 0:
+            raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
+    if cfg.rounds < 1:
+        raise ValueError("rounds:= must be >= 1")
     torch.set_num_threads(cfg.threads)
     layout = layout_of(cfg.env)
     expert = resolve_policy(cfg.expert, cfg.env)
-    name = f"{cfg.algorithm}-{cfg.env}-{cfg.mode}"
+    name = f"{cfg.algorithm}-{cfg.env}" + (f"-{cfg.mode}" if attack_name != "none" else "")
+    mode = cfg.mode if attack_name != "none" else "clean"
     run_dir = Path(cfg.run_dir or f"runs/{name}")
     run_dir.mkdir(parents=True, exist_ok=True)
     state_path, data_path = run_dir / "state.json", run_dir / "data.npz"
-    config = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in ("run_dir", "out", "threads", "rounds")}
+    config = {k: v for k, v in dataclasses.asdict(cfg).items()
+              if k not in ("run_dir", "out", "threads", "rounds", "eval_episodes")}
     state = {"config": config, "rounds": []}
     if state_path.exists():
         state = json.loads(state_path.read_text())
@@ -116,7 +147,7 @@ def train_dagger(cfg: DaggerConfig, log=print) -> Path:
             changed = sorted(k for k in config if state["config"].get(k) != config[k])
             raise ValueError(f"{run_dir} holds a run with other settings ({', '.join(changed)}); "
                              f"pick another run_dir:= or repeat its settings")
-        log(f"[train-dagger {name}] resuming after round {len(state['rounds']) - 1}", flush=True)
+        log(f"[train-learner {name}] resuming after round {len(state['rounds']) - 1}", flush=True)
     if state["rounds"] and "samples" not in state["rounds"][-1] and len(state["rounds"]) <= cfg.rounds:
         state["rounds"].pop()  # the evaluation-only last round of a shorter run: now it collects and fits too
     data, data_round = None, np.zeros(0, dtype=np.int64)
@@ -135,21 +166,31 @@ def train_dagger(cfg: DaggerConfig, log=print) -> Path:
         finally:
             engine.close()
 
-    # round r (>= 1) first runs pi_r, which is also pi_r's evaluation; the last round only evaluates
+    # round r (>= 1) first runs pi_r, which is also pi_r's evaluation (DART: the noisy expert collects
+    # and pi_r is evaluated apart); the last round only evaluates
     for r in range(len(state["rounds"]), cfg.rounds + 1):
         round_started = time.time()
         learner = expert if r == 0 else load_policy(run_dir / f"pi-{r}.pt", cfg.env)
         adversary_file = ""
         if r > 0 and attack_name == "aril_a":
             adversary_file = str(run_dir / f"adversary-{r}.pt")
-            train_adversary(AdversaryConfig(env=cfg.env, mode=cfg.mode, eps=cfg.eps, victim=str(run_dir / f"pi-{r}.pt"),
+            train_adversary(AdversaryConfig(env=cfg.env, mode=mode, eps=cfg.eps, victim=str(run_dir / f"pi-{r}.pt"),
                                             expert=cfg.expert, steps=cfg.adversary_steps, seed=cfg.seed * 1000 + r,
                                             out=adversary_file), log=log)
         attack = make_attack(attack_name if r > 0 else "none", layout, cfg.eps if r > 0 else 0.0, victim=learner,
-                             expert=expert, adversary=adversary_file, mode=cfg.mode)
-        traj = rollout(learner, attack, cfg.mode if r > 0 else "clean", cfg.episodes, cfg.seed * 100_000 + r * 1000)
-        record = {"round": r, "return": float(traj.returns.mean()), "return_std": float(traj.returns.std()),
-                  "expert_loss": traj.mean_expert_loss}
+                             expert=expert, adversary=adversary_file, mode=mode)
+        collector, record = learner, {"round": r}
+        if r > 0 and cfg.algorithm == "dart":
+            cov = learner_error_covariance(learner, data)
+            collector = NoisyPolicy(expert, cov, np.random.default_rng([cfg.seed, r]))
+            record["noise_trace"] = float(np.trace(cov))
+        seed = cfg.seed * 100_000 + r * 1000
+        traj = rollout(collector, attack, mode if r > 0 else "clean", cfg.episodes, seed)
+        judged = traj if collector is learner else rollout(learner, None, "clean", cfg.episodes, seed)
+        record.update({"return": float(judged.returns.mean()), "return_std": float(judged.returns.std()),
+                       "expert_loss": judged.mean_expert_loss})
+        if collector is not learner:
+            record["collected_return"] = float(traj.returns.mean())
         if r > 0 and attack_name != "none":
             record["clean_return"] = float(rollout(learner, None, "clean", cfg.eval_episodes, EVAL_SEED).returns.mean())
         if r < cfg.rounds:
@@ -157,9 +198,10 @@ def train_dagger(cfg: DaggerConfig, log=print) -> Path:
             data = part if data is None else DaggerDataset.concatenate([data, part])
             data_round = np.concatenate([data_round, np.full(len(part), r)])
             provenance = {"algorithm": cfg.algorithm, "round": r + 1, "samples": len(data),
-                          "command": command_line("aril train-dagger", cfg), "expert": cfg.expert,
-                          "expert_provenance": expert.meta.provenance, "mode": cfg.mode, "attack": attack_name,
-                          "eps": cfg.eps, "seed": cfg.seed, "git_revision": git_revision()}
+                          "command": command_line("aril train-learner", cfg), "expert": cfg.expert,
+                          "expert_provenance": expert.meta.provenance, "mode": mode, "attack": attack_name,
+                          "eps": cfg.eps if attack_name != "none" else 0.0, "seed": cfg.seed,
+                          "git_revision": git_revision()}
             policy = fit_policy(data, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch, cfg.seed * 1000 + r,
                                 provenance)
             save_policy(policy, run_dir / f"pi-{r + 1}.pt")
@@ -168,9 +210,11 @@ def train_dagger(cfg: DaggerConfig, log=print) -> Path:
         record["seconds"] = round(time.time() - round_started, 1)
         state["rounds"].append(record)
         _save_atomic(state_path, lambda tmp: tmp.write_text(json.dumps(state, indent=1)))
-        who = "expert" if r == 0 else f"pi_{r}" + (f" {cfg.mode}/{attack_name}" if attack_name != "none" else "")
-        log(f"[train-dagger {name}] round {r}: {who} return {record['return']:8.1f} ± {record['return_std']:6.1f}"
+        who = "expert" if r == 0 else f"pi_{r}" + (f" {mode}/{attack_name}" if attack_name != "none" else "")
+        log(f"[train-learner {name}] round {r}: {who} return {record['return']:8.1f} ± {record['return_std']:6.1f}"
             + (f" (clean {record['clean_return']:.1f})" if "clean_return" in record else "")
+            + (f" (noisy expert {record['collected_return']:.1f}, noise trace {record['noise_trace']:.4f})"
+               if "noise_trace" in record else "")
             + f"  expert loss {record['expert_loss']:.4f}"
             + (f"  samples {record['samples']:7d}  train loss {record['train_loss']:.4f}" if "samples" in record else "")
             + f"  {record['seconds']:.0f}s", flush=True)
@@ -182,7 +226,7 @@ def train_dagger(cfg: DaggerConfig, log=print) -> Path:
     policy.meta.provenance.update({
         "selected": f"pi_{best['round']}", "rounds": cfg.rounds, "train_seconds": round(time.time() - started, 1),
         "selection": "the learner with the best return in its own round"
-                     + (f" ({cfg.mode}, {attack_name} eps {cfg.eps})" if attack_name != "none" else " (clean)"),
+                     + (f" ({mode}, {attack_name} eps {cfg.eps})" if attack_name != "none" else " (clean)"),
         "rounds_log": state["rounds"],
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     })

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from .adversary import AdversaryConfig, bundled_adversary_path, load_adversary, train_adversary
 from .args import arg, command_line
+from .attacks import calibrated_eps
 from .evaluation import EvalConfig, evaluate
 from .experts import git_revision
 
@@ -118,14 +119,6 @@ def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
     return payload
 
 
-def chosen_eps(calibration: str, env: str, mode: str) -> float:
-    rows = json.loads(Path(calibration).read_text())["rows"]
-    for row in rows:
-        if (row["env"], row["mode"]) == (env, mode):
-            return float(row["chosen_eps"])
-    raise ValueError(f"{calibration} has no eps for {env} {mode}; run aril calibrate-eps first")
-
-
 @dataclass
 class AttackTableConfig:
     """Arguments of ``aril attack-table``."""
@@ -155,7 +148,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     stamp = _stamp("aril attack-table", cfg)
     fresh = []
     for env in _split(cfg.envs):
-        eps = chosen_eps(cfg.calibration, env, cfg.mode)
+        eps = calibrated_eps(env, cfg.mode, cfg.calibration)
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (bundled_adversary_path(env, cfg.mode) if cfg.policy == BUNDLED_LEARNER
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from aril_ros.dagger import DaggerConfig, train_dagger
+from aril_ros.dagger import LearnerConfig, train_learner
 from aril_ros.policy import load_policy
 
 
@@ -14,11 +14,11 @@ def quiet(*args, **kwargs):
 def small(tmp_path, **overrides):
     fields = dict(env="Swimmer-v5", rounds=2, episodes=1, epochs=2, eval_episodes=1, run_dir=str(tmp_path / "run"),
                   out=str(tmp_path / "out.pt"))
-    return DaggerConfig(**{**fields, **overrides})
+    return LearnerConfig(**{**fields, **overrides})
 
 
 def test_rounds_aggregate_the_learners_own_states_and_select_the_best(tmp_path):
-    out = train_dagger(small(tmp_path), log=quiet)
+    out = train_learner(small(tmp_path), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
     assert [r["round"] for r in state["rounds"]] == [0, 1, 2]
     assert [r.get("samples") for r in state["rounds"]] == [1000, 2000, None]  # the last round only evaluates
@@ -30,20 +30,20 @@ def test_rounds_aggregate_the_learners_own_states_and_select_the_best(tmp_path):
     best = max(state["rounds"][1:], key=lambda r: r["return"])
     assert policy.meta.provenance["selected"] == f"pi_{best['round']}"
     assert policy.meta.provenance["algorithm"] == "dagger"
-    assert policy.meta.provenance["command"].startswith("aril train-dagger env:=Swimmer-v5")
+    assert policy.meta.provenance["command"].startswith("aril train-learner algorithm:=dagger env:=Swimmer-v5")
 
 
 def test_an_interrupted_run_resumes_from_its_last_round_and_ends_as_an_uninterrupted_one(tmp_path):
-    train_dagger(small(tmp_path / "a"), log=quiet)
+    train_learner(small(tmp_path / "a"), log=quiet)
 
     def interrupt_after_round_1(message, **kwargs):
         if "round 1:" in message:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        train_dagger(small(tmp_path / "b"), log=interrupt_after_round_1)
+        train_learner(small(tmp_path / "b"), log=interrupt_after_round_1)
     messages = []
-    train_dagger(small(tmp_path / "b"), log=lambda m, **k: messages.append(m))
+    train_learner(small(tmp_path / "b"), log=lambda m, **k: messages.append(m))
     assert messages[0].endswith("resuming after round 1")
     assert not any("round 0:" in m or "round 1:" in m for m in messages)
     for name in ("obs", "expert_action", "round"):
@@ -56,20 +56,20 @@ def test_an_interrupted_run_resumes_from_its_last_round_and_ends_as_an_uninterru
 
 
 def test_more_rounds_extend_a_finished_run(tmp_path):
-    train_dagger(small(tmp_path), log=quiet)
-    train_dagger(small(tmp_path, rounds=3), log=quiet)
+    train_learner(small(tmp_path), log=quiet)
+    train_learner(small(tmp_path, rounds=3), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
     assert [r.get("samples") for r in state["rounds"]] == [1000, 2000, 3000, None]
 
 
 def test_a_run_directory_refuses_other_settings(tmp_path):
-    train_dagger(small(tmp_path), log=quiet)
+    train_learner(small(tmp_path), log=quiet)
     with pytest.raises(ValueError, match=r"other settings \(episodes\)"):
-        train_dagger(small(tmp_path, episodes=2), log=quiet)
+        train_learner(small(tmp_path, episodes=2), log=quiet)
 
 
 def test_domain_randomisation_collects_through_random_perturbations(tmp_path):
-    train_dagger(small(tmp_path, mode="sensory", attack="random", eps=0.05), log=quiet)
+    train_learner(small(tmp_path, algorithm="dr", mode="sensory", eps=0.05), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
     assert "clean_return" in state["rounds"][1]
     policy = load_policy(tmp_path / "out.pt")
@@ -78,7 +78,30 @@ def test_domain_randomisation_collects_through_random_perturbations(tmp_path):
 
 
 def test_bad_arguments_are_refused(tmp_path):
-    with pytest.raises(ValueError, match="needs eps"):
-        train_dagger(small(tmp_path, mode="sensory", attack="random"), log=quiet)
+    with pytest.raises(ValueError, match="eps:= must be > 0"):
+        train_learner(small(tmp_path, algorithm="dr", eps=-0.1), log=quiet)
+    with pytest.raises(ValueError, match="mode:=sensory or mode:=physical"):
+        train_learner(small(tmp_path, algorithm="aril", mode="clean"), log=quiet)
+    with pytest.raises(ValueError, match="unknown algorithm 'dagr'"):
+        train_learner(small(tmp_path, algorithm="dagr"), log=quiet)
     with pytest.raises(ValueError, match="rounds"):
-        train_dagger(small(tmp_path, rounds=1), log=quiet)
+        train_learner(small(tmp_path, rounds=0), log=quiet)
+
+
+def test_dr_takes_the_calibrated_eps_by_default(tmp_path):
+    from aril_ros.attacks import calibrated_eps
+
+    train_learner(small(tmp_path, algorithm="dr", mode="physical", rounds=1), log=quiet)
+    assert load_policy(tmp_path / "out.pt").meta.provenance["eps"] == calibrated_eps("Swimmer-v5", "physical")
+    (tmp_path / "cal.json").write_text('{"rows": []}')
+    with pytest.raises(ValueError, match="no eps for Swimmer-v5 physical"):
+        calibrated_eps("Swimmer-v5", "physical", tmp_path / "cal.json")
+
+
+def test_dart_collects_with_the_expert_and_noise_sized_by_the_learner(tmp_path):
+    train_learner(small(tmp_path, algorithm="dart"), log=quiet)
+    state = json.loads((tmp_path / "run" / "state.json").read_text())
+    first = state["rounds"][1]
+    assert first["noise_trace"] > 0 and "collected_return" in first
+    with np.load(tmp_path / "run" / "data.npz") as data:
+        assert list(np.bincount(data["round"])) == [1000, 1000]
