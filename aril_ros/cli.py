@@ -19,6 +19,7 @@ from .envs import EnvLayoutError
 from .evaluation import EvalConfig, evaluate
 from .experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
 from .experts import ExpertConfig, train_expert
+from .gail import GailConfig, train_gail
 from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
 from .policy import PolicyFileError
@@ -82,6 +83,7 @@ COMMANDS = {
     "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
     "train-learner": (LearnerConfig, train_learner,
                       "Imitate by rounds: algorithm:=dagger, dart, dr (domain randomisation) or aril (Algorithm 1)."),
+    "train-gail": (GailConfig, train_gail, "GAIL: a discriminator's reward for stable-baselines3 PPO (no expert labels)."),
     "train-adversary": (AdversaryConfig, run_train_adversary,
                         "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
     "calibrate-eps": (CalibrationConfig, calibrate_eps,

@@ -124,8 +124,13 @@ class ExpertConfig:
                           "SAC refills one from the resumed policy)")
 
 
-def train_expert(cfg: ExpertConfig, log=print) -> Path:
-    """Train on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path."""
+def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=None, label: str = "train-expert",
+                 command: str = "", provenance: dict | None = None) -> Path:
+    """Train on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path.
+
+    Learners built on the same loop (GAIL) pass ``wrap_env`` (applied to the gymnasium env, e.g. to
+    swap the reward), ``on_rollout_end`` (called after each PPO rollout), their ``label``, the
+    ``command`` that reproduces them and extra ``provenance``."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -139,13 +144,14 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
     out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
-    command = command_line("aril train-expert", cfg)
+    command = command or command_line("aril train-expert", cfg)
+    wrap_env = wrap_env or (lambda env: env)
     resume = Path(cfg.resume) if cfg.resume else None
     state = json.loads((resume / "state.json").read_text()) if resume else {}
     if state and (state["env"], state["algo"]) != (cfg.env, cfg.algo):
         raise ValueError(f"{resume} holds a {state['algo']} run on {state['env']}, not {cfg.algo} on {cfg.env}")
     if cfg.algo == "sac":
-        env = make_gym_env(cfg.env)
+        env = wrap_env(make_gym_env(cfg.env))
         if resume:
             model = SAC.load(resume / "model.zip", env=env, device="cpu")
             if (resume / "replay_buffer.pkl").exists():
@@ -154,7 +160,7 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             model = SAC("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
         export = lambda provenance: export_sac_actor(model, cfg.env, provenance)  # noqa: E731
     else:
-        env = VecNormalize(DummyVecEnv([lambda: make_gym_env(cfg.env)]), gamma=hyper["gamma"])
+        env = VecNormalize(DummyVecEnv([lambda: wrap_env(make_gym_env(cfg.env))]), gamma=hyper["gamma"])
         if resume:
             env = VecNormalize.load(resume / "vecnormalize.pkl", env.venv)
             model = PPO.load(resume / "model.zip", env=env, device="cpu")
@@ -178,7 +184,7 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             "best_mean_return": best["mean_return"], "commands": commands}, indent=1))
 
     def evaluate(step: int) -> None:
-        provenance = {
+        record = {
             "algorithm": f"stable-baselines3 {cfg.algo.upper()}",
             "hyperparameters": hyper,
             "command": command,
@@ -189,20 +195,21 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             "git_revision": git_revision(),
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "torch": torch.__version__,
+            **(provenance or {}),
         }
-        policy = export(provenance)
+        policy = export(record)
         engine = RolloutEngine(cfg.env, policy, policy, n_envs=cfg.eval_episodes)
         returns = engine.rollout(cfg.eval_episodes, seed=10_000).returns
         engine.close()
         mean, std = float(returns.mean()), float(returns.std())
         kept = mean > best["mean_return"]
         log(
-            f"[train-expert {cfg.env}] step {step:>8d}  {provenance['train_seconds']:8.0f}s  "
+            f"[{label} {cfg.env}] step {step:>8d}  {record['train_seconds']:8.0f}s  "
             f"eval return {mean:9.1f} ± {std:7.1f}{'  (best, saved)' if kept else ''}",
             flush=True,
         )
         if kept:
-            provenance["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": 10_000, "mean_return": mean}
+            record["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": 10_000, "mean_return": mean}
             best.update(mean_return=mean)
             save_policy(policy, out)
         if cfg.checkpoint:
@@ -213,6 +220,10 @@ def train_expert(cfg: ExpertConfig, log=print) -> Path:
             if self.num_timesteps % cfg.eval_every == 0:
                 evaluate(self.num_timesteps)
             return True
+
+        def _on_rollout_end(self) -> None:
+            if on_rollout_end is not None:
+                on_rollout_end()
 
     model.learn(cfg.steps - model.num_timesteps, callback=EvalCallback(), reset_num_timesteps=not resume)
     if cfg.steps % cfg.eval_every:
