@@ -23,6 +23,8 @@ import dataclasses
 import datetime
 import json
 import os
+import subprocess
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +39,7 @@ from .dataset import DaggerDataset
 from .envs import layout_of
 from .experts import git_revision, resolve_policy
 from .learners import fit_policy
+from .mcap_log import load_dagger_dataset, read_run
 from .policy import load_policy, save_policy
 from .rollout import RolloutEngine
 
@@ -68,6 +71,9 @@ class LearnerConfig:
     run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>[-<mode>]); an existing one is resumed")
     out: str = arg("", "where to write the selected policy (default runs/<algorithm>-<env>[-<mode>].pt)")
     threads: int = arg(1, "torch threads")
+    source: str = arg("inprocess", "where rounds are collected: inprocess (the engine, fast) or graph (run_graph.py "
+                                   "through the ROS 2 nodes, recorded to <run_dir>/round-<r>.mcap and loaded back); "
+                                   "the same seeds give the same data set")
 
 
 class NoisyPolicy:
@@ -93,6 +99,7 @@ def learner_error_covariance(policy, data: DaggerDataset) -> np.ndarray:
 
 
 EVAL_SEED = 500_000
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _save_atomic(path: Path, write) -> None:
@@ -130,6 +137,10 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
             raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
     if cfg.rounds < 1:
         raise ValueError("rounds:= must be >= 1")
+    if cfg.source not in ("inprocess", "graph"):
+        raise ValueError(f"source:= must be inprocess or graph, got {cfg.source!r}")
+    if cfg.source == "graph" and cfg.algorithm == "dart":
+        raise ValueError("dart collects with a noisy expert, which has no policy node: use source:=inprocess")
     torch.set_num_threads(cfg.threads)
     layout = layout_of(cfg.env)
     expert = resolve_policy(cfg.expert, cfg.env)
@@ -139,7 +150,7 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     state_path, data_path = run_dir / "state.json", run_dir / "data.npz"
     config = {k: v for k, v in dataclasses.asdict(cfg).items()
-              if k not in ("run_dir", "out", "threads", "rounds", "eval_episodes")}
+              if k not in ("run_dir", "out", "threads", "rounds", "eval_episodes", "source")}
     state = {"config": config, "rounds": []}
     if state_path.exists():
         state = json.loads(state_path.read_text())
@@ -185,16 +196,21 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
             collector = NoisyPolicy(expert, cov, np.random.default_rng([cfg.seed, r]))
             record["noise_trace"] = float(np.trace(cov))
         seed = cfg.seed * 100_000 + r * 1000
-        traj = rollout(collector, attack, mode if r > 0 else "clean", cfg.episodes, seed)
-        judged = traj if collector is learner else rollout(learner, None, "clean", cfg.episodes, seed)
-        record.update({"return": float(judged.returns.mean()), "return_std": float(judged.returns.std()),
-                       "expert_loss": judged.mean_expert_loss})
+        if cfg.source == "graph":
+            part, returns, expert_loss = collect_through_graph(
+                run_dir / f"round-{r}.mcap", cfg, cfg.expert if r == 0 else str(run_dir / f"pi-{r}.pt"),
+                mode if r > 0 else "clean", attack_name if r > 0 else "none", adversary_file, seed)
+        else:
+            traj = rollout(collector, attack, mode if r > 0 else "clean", cfg.episodes, seed)
+            part, returns, expert_loss = DaggerDataset.from_trajectories(traj), traj.returns, traj.mean_expert_loss
         if collector is not learner:
-            record["collected_return"] = float(traj.returns.mean())
+            record["collected_return"] = float(returns.mean())
+            judged = rollout(learner, None, "clean", cfg.episodes, seed)
+            returns, expert_loss = judged.returns, judged.mean_expert_loss
+        record.update({"return": float(returns.mean()), "return_std": float(returns.std()), "expert_loss": expert_loss})
         if r > 0 and attack_name != "none":
             record["clean_return"] = float(rollout(learner, None, "clean", cfg.eval_episodes, EVAL_SEED).returns.mean())
         if r < cfg.rounds:
-            part = DaggerDataset.from_trajectories(traj)
             data = part if data is None else DaggerDataset.concatenate([data, part])
             data_round = np.concatenate([data_round, np.full(len(part), r)])
             provenance = {"algorithm": cfg.algorithm, "round": r + 1, "samples": len(data),
@@ -233,3 +249,22 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     out = save_policy(policy, cfg.out or f"runs/{name}.pt")
     log(json.dumps({"out": str(out), "selected": f"pi_{best['round']}", "return": round(best["return"], 1)}))
     return out
+
+
+def collect_through_graph(record: Path, cfg: LearnerConfig, policy: str, mode: str, attack: str, adversary_file: str,
+                          seed: int) -> tuple[DaggerDataset, np.ndarray, float]:
+    """Run the round through the ROS 2 graph (``run_graph.py`` in a process of its own, so this module
+    never imports rclpy), then read its run log back: the data set, per-episode returns, expert loss."""
+    command = [sys.executable, str(ROOT / "run_graph.py"), f"env:={cfg.env}", f"mode:={mode}", f"attack:={attack}",
+               f"eps:={cfg.eps if attack != 'none' else 0.0}", f"policy:={policy}", f"expert:={cfg.expert}",
+               f"episodes:={cfg.episodes}", f"seed:={seed}", f"record:={record}"]
+    if adversary_file:
+        command.append(f"attack_file:={adversary_file}")
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    if done.returncode != 0:
+        raise RuntimeError(f"the graph run for {record.name} failed ({done.returncode}): "
+                           + (done.stderr.strip().splitlines() or ["no output"])[-1])
+    run = read_run(record)
+    returns = np.bincount(run.episodes, weights=run.reward)
+    expert_loss = float(((run.action - run.expert_action) ** 2).sum(axis=1).mean())
+    return load_dagger_dataset(record, cfg.env), returns, expert_loss

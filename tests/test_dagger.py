@@ -105,3 +105,17 @@ def test_dart_collects_with_the_expert_and_noise_sized_by_the_learner(tmp_path):
     assert first["noise_trace"] > 0 and "collected_return" in first
     with np.load(tmp_path / "run" / "data.npz") as data:
         assert list(np.bincount(data["round"])) == [1000, 1000]
+
+
+def test_rounds_through_the_ros_graph_give_the_in_process_data_set(tmp_path):
+    common = dict(algorithm="dr", mode="sensory", eps=0.05, rounds=2)  # round 1 collects under the attack
+    train_learner(small(tmp_path / "inprocess", **common), log=quiet)
+    train_learner(small(tmp_path / "graph", source="graph", **common), log=quiet)
+    with np.load(tmp_path / "inprocess" / "run" / "data.npz") as a, np.load(tmp_path / "graph" / "run" / "data.npz") as b:
+        for name in ("obs", "expert_action", "episode", "round"):
+            np.testing.assert_array_equal(a[name], b[name])
+        assert str(b["source"][0]).endswith("round-0.mcap") and str(b["source"][-1]).endswith("round-1.mcap")
+    assert (tmp_path / "graph" / "run" / "round-2.mcap").exists()
+    a = json.loads((tmp_path / "inprocess" / "run" / "state.json").read_text())["rounds"]
+    b = json.loads((tmp_path / "graph" / "run" / "state.json").read_text())["rounds"]
+    assert [r["return"] for r in a] == pytest.approx([r["return"] for r in b], rel=1e-9)
