@@ -17,7 +17,8 @@ from .args import ArgumentError, arg, parse_args, usage
 from .dagger import LearnerConfig, train_learner
 from .envs import EnvLayoutError
 from .evaluation import EvalConfig, evaluate
-from .experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
+from .experiments import (AttackTableConfig, CalibrationConfig, DefenseTableConfig, attack_table, calibrate_eps,
+                          defense_table)
 from .experts import ExpertConfig, train_expert
 from .gail import GailConfig, train_gail
 from .learners import BCConfig, train_bc
@@ -90,6 +91,8 @@ COMMANDS = {
                       "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%); writes results/."),
     "attack-table": (AttackTableConfig, attack_table,
                      "The paper's Adversary rows (clean, random, FGSM, FGSM^k, ARIL-A); writes results/."),
+    "defense-table": (DefenseTableConfig, defense_table,
+                      "The paper's Robust IL rows: each defense under the strongest attack against it; writes results/."),
     "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
     "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }

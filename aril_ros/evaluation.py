@@ -19,7 +19,8 @@ class EvalConfig:
     """Arguments of ``aril eval``."""
 
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
-    policy: str = arg("expert", "policy to evaluate: a bundled name (expert) or a policy file path")
+    policy: str = arg("expert", "policy to evaluate: a bundled name (expert, dagger, dart, gail, bc; dr and aril take "
+                                "the one of mode:=) or a policy file path")
     expert: str = arg("expert", "expert that labels the true states: a bundled name or a file path")
     mode: str = arg("clean", f"one of {', '.join(MODES)}")
     attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
@@ -39,7 +40,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     torch.set_num_threads(cfg.threads)
     attack_name = attack_for_mode(cfg.mode, cfg.attack)
     layout = layout_of(cfg.env)  # an unknown or non-MuJoCo id is the first thing to report
-    policy = resolve_policy(cfg.policy, cfg.env)
+    policy = resolve_policy(cfg.policy, cfg.env, cfg.mode)
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0, victim=policy,
                          expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,

@@ -193,3 +193,90 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         lines.append(f"| {ROW_NAMES[attack]} | " + " | ".join(row) + f" | {overall} |")
     _write(cfg.out or f"results/attacks_{cfg.mode}", payload, "\n".join(lines) + "\n")
     return payload
+
+
+DEFENSES = {"dagger": "DAgger", "aril": "ARIL", "dart": "DART", "dr": "DR", "gail": "GAIL", "bc": "BC"}
+THREATS = ("random", "fgsm", "fgsm_k", "aril_a")
+
+
+@dataclass
+class DefenseTableConfig:
+    """Arguments of ``aril defense-table``."""
+
+    mode: str = arg("sensory", "sensory (Table 1) or physical (Table 2)")
+    envs: str = arg(PAPER_ENVS_ARG, "comma-separated env ids")
+    defenses: str = arg(",".join(DEFENSES), "comma-separated bundled learners (aril and dr: the ones of mode:=)")
+    expert: str = arg("expert", "the expert")
+    calibration: str = arg("results/eps_calibration.json", "where the eps per env and mode come from")
+    episodes: int = arg(20, "deterministic episodes per cell")
+    seed: int = arg(3000, "env seed of the first episode (and of the attack noise)")
+    k: int = arg(10, "FGSM^k steps")
+    adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense")
+    adversary_dir: str = arg("runs/defense-adversaries", "where the adversaries against each defense go (reused "
+                                                         "when they exist with the same eps)")
+    retrain: bool = arg(False, "train the adversaries even if they exist")
+    horizon: int = arg(1000, "steps per episode")
+    out: str = arg("", "output path without suffix (default: results/defenses_<mode>)")
+
+
+def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
+    """Each defense's return under the strongest of random, FGSM, FGSM^k and an ARIL-A trained against
+    that very defense; drops are from the clean DAgger learner's return (the paper's reference)."""
+    from .experts import bundled_file
+
+    stamp = _stamp("aril defense-table", cfg)
+    defenses = _split(cfg.defenses)
+    unknown = [d for d in defenses if d not in DEFENSES]
+    if unknown:
+        raise ValueError(f"unknown defenses {unknown}; choose from {', '.join(DEFENSES)}")
+    fresh = []
+    for env in _split(cfg.envs):
+        eps = calibrated_eps(env, cfg.mode, cfg.calibration)
+        common = dict(env=env, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, k=cfg.k)
+        reference = evaluate(EvalConfig(policy=str(bundled_file("dagger", env)), mode="clean", **common))["mean_return"]
+        cells = {}
+        for defense in defenses:
+            policy = str(bundled_file(defense, env, cfg.mode))
+            adversary = Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt"
+            if cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
+                train_adversary(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=policy, expert=cfg.expert,
+                                                steps=cfg.adversary_steps, out=str(adversary)), log=log)
+            results = {"none": evaluate(EvalConfig(policy=policy, mode="clean", **common))}
+            for threat in THREATS:
+                results[threat] = evaluate(EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
+                                                      attack_file=str(adversary) if threat == "aril_a" else "",
+                                                      **common))
+            worst = min(THREATS, key=lambda t: results[t]["mean_return"])
+            cells[defense] = {
+                "clean": results["none"]["mean_return"], "clean_std": results["none"]["std_return"],
+                "attacks": {t: {"mean": results[t]["mean_return"], "std": results[t]["std_return"]} for t in THREATS},
+                "worst": worst, "mean": results[worst]["mean_return"], "std": results[worst]["std_return"],
+                "drop": round(1.0 - results[worst]["mean_return"] / reference, 4) if reference else 0.0,
+                "episodes": cfg.episodes, "eps": eps, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
+                "policy": policy.split("aril_ros/")[-1], "adversary": load_adversary(adversary).meta["provenance"],
+                **stamp}
+            log(f"[defense-table {cfg.mode}] {env} {DEFENSES[defense]}: clean {cells[defense]['clean']:.1f}, worst "
+                f"{ROW_NAMES[worst]} {cells[defense]['mean']:.1f} ± {cells[defense]['std']:.1f}", flush=True)
+        fresh.append({"env": env, "dagger_clean": reference, "cells": cells})
+    out = cfg.out or f"results/defenses_{cfg.mode}"
+    rows = _merge(out, lambda r: (r["env"],), fresh, lambda old: old.get("mode") == cfg.mode)
+    envs = [r["env"] for r in rows]
+    by_env = {r["env"]: r for r in rows}
+    shown = [d for d in DEFENSES if all(d in by_env[e]["cells"] for e in envs)]
+    payload = {"mode": cfg.mode, "rows": rows,
+               "overall_drop": {d: round(sum(by_env[e]["cells"][d]["drop"] for e in envs) / len(envs), 4)
+                                for d in shown}}
+    table = "Table 1" if cfg.mode == "sensory" else "Table 2"
+    lines = [f"# {table} ({cfg.mode} attacks), Robust IL rows", "",
+             "Each defense's return under the strongest of random, FGSM, FGSM^k and an ARIL-A trained against that "
+             "defense (in brackets), mean ± std over deterministic episodes; the drop is from the clean DAgger "
+             "learner. Each cell's seeds, clean return, every attack's figure and the command are in the JSON.", "",
+             "| defense | " + " | ".join(f"{e} (eps {by_env[e]['cells'][shown[0]]['eps']:g})" for e in envs)
+             + " | overall |", "|---|" + "---|" * len(envs) + "---|",
+             "| DAgger, clean | " + " | ".join(f"{by_env[e]['dagger_clean']:.0f}" for e in envs) + " | 0% |"]
+    for d in shown:
+        row = [f"{c['mean']:.0f} ± {c['std']:.0f} ({-100 * c['drop']:+.1f}%, {ROW_NAMES[c['worst']]})"
+               for c in (by_env[e]["cells"][d] for e in envs)]
+        lines.append(f"| {DEFENSES[d]} | " + " | ".join(row) + f" | {-100 * payload['overall_drop'][d]:+.1f}% |")
+    _write(out, payload, "\n".join(lines) + "\n")
+    return payload

@@ -28,7 +28,8 @@ from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-BUNDLED_KINDS = ("expert", "bc", "dagger", "bundled")
+BUNDLED_KINDS = ("expert", "bc", "dagger", "dart", "gail", "dr", "aril", "bundled")
+MODE_KINDS = ("dr", "aril")  # trained against one attack mode: one bundled file per env and mode
 # "bundled" is the default bundled policy: the expert until a DAgger learner is bundled for every env
 BUNDLED_DEFAULT = "expert"
 
@@ -41,22 +42,33 @@ HYPERPARAMETERS = {
 }
 
 
-def bundled_path(kind: str, env_id: str) -> Path:
-    return DATA_DIR / kind / f"{env_id}.pt"
+def bundled_path(kind: str, env_id: str, mode: str | None = None) -> Path:
+    """Where a bundled policy lives; ``dr`` and ``aril`` have one per attack ``mode``."""
+    if kind not in MODE_KINDS:
+        return DATA_DIR / kind / f"{env_id}.pt"
+    if mode not in ("sensory", "physical"):
+        raise PolicyFileError(f"the bundled {kind} policies are trained per attack mode: it takes mode sensory or "
+                              f"physical (got {mode}); for another mode pass the file, e.g. {DATA_DIR / kind}/"
+                              f"{env_id}-sensory.pt")
+    return DATA_DIR / kind / f"{env_id}-{mode}.pt"
 
 
-def resolve_policy(name_or_path: str, env_id: str) -> MLPPolicy:
-    """A bundled name (``expert``, ``bc``, ``bundled``) or a policy file path, checked against ``env_id``."""
-    if name_or_path == "bundled":
-        name_or_path = BUNDLED_DEFAULT
+def bundled_file(name: str, env_id: str, mode: str | None = None) -> Path:
+    """The file of a bundled policy name, with the bundled ones listed when it is missing."""
+    kind = BUNDLED_DEFAULT if name == "bundled" else name
+    path = bundled_path(kind, env_id, mode)
+    if not path.is_file():
+        raise PolicyFileError(f"no bundled {kind} for {env_id}{f' ({mode})' if kind in MODE_KINDS else ''} "
+                              f"(looked for {path}); bundled: "
+                              + (", ".join(sorted(p.stem for p in (DATA_DIR / kind).glob("*.pt"))) or "none"))
+    return path
+
+
+def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
+    """A bundled name (``expert``, ``dagger``, ``aril``, ...; ``mode`` picks the ``dr``/``aril`` one) or a
+    policy file path, checked against ``env_id``."""
     if name_or_path in BUNDLED_KINDS:
-        path = bundled_path(name_or_path, env_id)
-        if not path.is_file():
-            raise PolicyFileError(
-                f"no bundled {name_or_path} for {env_id} (looked for {path}); bundled envs: "
-                + ", ".join(sorted(p.stem for p in (DATA_DIR / name_or_path).glob("*.pt")))
-            )
-        return load_policy(path, env_id)
+        return load_policy(bundled_file(name_or_path, env_id, mode), env_id)
     if not Path(name_or_path).suffix:
         raise PolicyFileError(
             f"{name_or_path!r} is neither a bundled policy name ({', '.join(BUNDLED_KINDS)}) nor a file path"

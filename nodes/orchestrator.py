@@ -28,7 +28,7 @@ from aril_ros import protocol as P
 from aril_ros.args import arg
 from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, attack_for_mode, make_attack
 from aril_ros.envs import layout_of
-from aril_ros.experts import BUNDLED_KINDS, git_revision, resolve_policy
+from aril_ros.experts import BUNDLED_KINDS, MODE_KINDS, bundled_file, git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.protocol import StepTag
 from aril_ros.rollout import MODES
@@ -136,7 +136,7 @@ class Orchestrator:
             self.eps = make_attack("aril_a", self.layout, 0.0, adversary=cfg.attack_file, mode=cfg.mode).eps
         # load both now: a bad file is reported before any process starts
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
-        self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env).meta
+        self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.record = None if cfg.record == "off" else Path(cfg.record or f"runs/{stamp}-{cfg.env}-{cfg.mode}.mcap")
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
@@ -150,13 +150,13 @@ class Orchestrator:
     def start_nodes(self, env: dict) -> None:
         cfg = self.cfg
         common = {"env": cfg.env}
-        policy, expert = _node_path(cfg.policy), _node_path(cfg.expert)
+        policy, expert = (_node_path(name, cfg.env, cfg.mode) for name in (cfg.policy, cfg.expert))
         specs = {
             "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
             "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "expert": expert,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
-                         **({"attack_file": _node_path(cfg.attack_file)} if cfg.attack_file else {})},
+                         **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
             "expert": {**common, "expert": expert},
         }
         if cfg.policy != "external":
@@ -281,8 +281,11 @@ class Orchestrator:
         }
 
 
-def _node_path(name: str) -> str:
-    """A bundled name as it is; a file as an absolute path, since the nodes run in the project root."""
+def _node_path(name: str, env_id: str, mode: str) -> str:
+    """A bundled name as it is (a per-mode one as its file); a file as an absolute path, since the
+    nodes run in the project root."""
+    if name in MODE_KINDS:
+        return str(bundled_file(name, env_id, mode))
     return name if name in (*BUNDLED_KINDS, "external") else str(Path(name).resolve())
 
 

@@ -43,3 +43,29 @@ def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
     other = save_policy(make_policy("Swimmer-v5", seed=3), tmp_path / "other.pt")
     payload = calibrate_eps(CalibrationConfig(modes="sensory", **{**common, "policy": str(other)}), **QUIET)
     assert len(payload["rows"]) == 1
+
+
+def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path, make_policy, monkeypatch):
+    from aril_ros import experts
+    from aril_ros.experiments import DefenseTableConfig, defense_table
+
+    monkeypatch.setattr(experts, "DATA_DIR", tmp_path / "data")
+    for seed, (kind, name) in enumerate((("expert", "Swimmer-v5"), ("dagger", "Swimmer-v5"),
+                                         ("aril", "Swimmer-v5-sensory"))):
+        save_policy(make_policy("Swimmer-v5", seed=seed), tmp_path / "data" / kind / f"{name}.pt")
+    (tmp_path / "cal.json").write_text(json.dumps({"rows": [{"env": "Swimmer-v5", "mode": "sensory",
+                                                             "chosen_eps": 0.3}]}))
+    payload = defense_table(DefenseTableConfig(envs="Swimmer-v5", defenses="dagger,aril", calibration=str(tmp_path / "cal.json"),
+                                               episodes=2, horizon=60, adversary_steps=2000, k=3,
+                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def")), **QUIET)
+    row = payload["rows"][0]
+    for defense in ("dagger", "aril"):
+        cell = row["cells"][defense]
+        worst = min(cell["attacks"].values(), key=lambda a: a["mean"])
+        assert cell["mean"] == worst["mean"] and cell["attacks"][cell["worst"]] == worst
+        assert cell["drop"] == round(1 - cell["mean"] / row["dagger_clean"], 4)
+        assert cell["adversary"]["victim"].endswith(f"{defense}/Swimmer-v5{'-sensory' if defense == 'aril' else ''}.pt")
+        assert (tmp_path / "adv" / f"Swimmer-v5-sensory-{defense}.pt").exists()
+    assert row["dagger_clean"] == row["cells"]["dagger"]["clean"]
+    text = (tmp_path / "def.md").read_text()
+    assert "| DAgger, clean |" in text and "| ARIL |" in text
