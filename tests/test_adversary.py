@@ -61,8 +61,10 @@ def test_adversary_files_round_trip_and_refuse_mismatches(swimmer_files, tmp_pat
         load_adversary(victim)  # a policy file is not an adversary
     with pytest.raises(ValueError, match="trained with eps=0.2, not eps=0.1"):
         make_attack("aril_a", layout_of("Swimmer-v5"), 0.1, adversary=str(path))
-    with pytest.raises(ValueError, match="needs an adversary file"):
-        make_attack("aril_a", layout_of("Swimmer-v5"), 0.1)
+    with pytest.raises(ValueError, match="needs an adversary file: no bundled one for Hopper-v5"):
+        make_attack("aril_a", layout_of("Hopper-v5"), 0.1)
+    bundled = make_attack("aril_a", layout_of("Swimmer-v5"), 0.0, mode="physical")  # by name: the bundled one
+    assert bundled.net.meta["provenance"]["victim"] == "dagger" and bundled.eps == bundled.net.eps
 
 
 def test_learned_attack_is_seeded_and_bounded(swimmer_files, tmp_path):
