@@ -134,6 +134,16 @@ def calibrated_eps(env_id: str, mode: str, calibration: str | Path = CALIBRATION
                      "or pass eps:=")
 
 
+def attack_budget(env_id: str, mode: str, attack: str, eps: float) -> float:
+    """The eps an attack runs with: ``eps`` when given; unset (0), the calibrated one for the env and
+    mode, except for aril_a, whose adversary file carries its own (0 here lets it decide)."""
+    if attack == "none":
+        return 0.0
+    if eps or attack == "aril_a":
+        return eps
+    return calibrated_eps(env_id, mode)
+
+
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from .args import arg
-from .attacks import ATTACK_NAMES, attack_for_mode, make_attack
+from .attacks import ATTACK_NAMES, attack_budget, attack_for_mode, make_attack
 from .envs import layout_of
 from .experts import resolve_policy
 from .rollout import MODES, RolloutEngine
@@ -24,7 +24,8 @@ class EvalConfig:
     expert: str = arg("expert", "expert that labels the true states: a bundled name or a file path")
     mode: str = arg("clean", f"one of {', '.join(MODES)}")
     attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
-    eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
+    eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
+                          "env and mode, results/eps_calibration.json; aril_a: its adversary's)")
     k: int = arg(10, "steps of fgsm_k")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
@@ -42,7 +43,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     layout = layout_of(cfg.env)  # an unknown or non-MuJoCo id is the first thing to report
     policy = resolve_policy(cfg.policy, cfg.env, cfg.mode)
     expert = resolve_policy(cfg.expert, cfg.env)
-    attack = make_attack(attack_name, layout, cfg.eps if attack_name != "none" else 0.0, victim=policy,
+    attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,
                          adversary=cfg.attack_file, mode=cfg.mode)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)

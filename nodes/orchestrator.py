@@ -26,7 +26,7 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.args import arg
-from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, attack_for_mode, make_attack
+from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, attack_budget, attack_for_mode, make_attack
 from aril_ros.envs import layout_of
 from aril_ros.experts import BUNDLED_KINDS, MODE_KINDS, bundled_file, git_revision, resolve_policy
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
@@ -45,7 +45,8 @@ class GraphConfig:
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
     env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
     attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
-    eps: float = arg(0.05, "L-infinity bound of the perturbation on the zero-order entries")
+    eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one "
+                          "for env and mode, results/eps_calibration.json; aril_a: its adversary's)")
     k: int = arg(10, "steps of fgsm_k")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
@@ -131,8 +132,8 @@ class Orchestrator:
         if self.attack in WHITE_BOX and cfg.policy == "external":
             raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
                              "policy can be attacked with attack:=random")
-        self.eps = cfg.eps if self.attack != "none" else 0.0
         self.layout = layout_of(cfg.env)
+        self.eps = attack_budget(cfg.env, cfg.mode, self.attack, cfg.eps)
         if self.attack == "aril_a":  # a missing or mismatched adversary file is reported before any process starts
             self.eps = make_attack("aril_a", self.layout, 0.0, adversary=cfg.attack_file, mode=cfg.mode).eps
         # load both now: a bad file is reported before any process starts
