@@ -8,6 +8,12 @@ victim's action on what the attack made it see (sensory) or on the moved state (
 maximises the discounted sum. It never needs the victim's gradients: it only queries actions, so
 any black-box policy can be attacked.
 
+The critic is split in two: the victim's disagreement at the state *without* the attack, computed
+exactly by querying the victim (``baseline``), plus a learned remainder. A perturbation moves the
+disagreement by little next to how much it varies from state to state, more than a learned value
+follows; the exact part removes that variance from the advantages without changing the objective
+(it is a state-dependent baseline, and the rewards stay the raw disagreement).
+
 Adversary files (``*.pt``) use the policy-file container (:func:`aril_ros.policy.save_weights`) with
 format ``aril_ros.adversary`` and a JSON meta: env id, mode, eps, sizes, hidden width, observation
 normalisation and provenance (victim, expert, training steps, seconds, seed, command).
@@ -42,7 +48,8 @@ def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
 
 
 class AdversaryNet(nn.Module):
-    """Mean ``eps * tanh(net(s))`` over the zero-order entries, learnable log-std, and a value head."""
+    """Mean ``eps * tanh(net(s))`` over the zero-order entries, learnable log-std, and a value head
+    (the learned remainder of the value, see the module docstring)."""
 
     def __init__(self, meta: dict):
         super().__init__()
