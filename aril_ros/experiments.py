@@ -259,6 +259,12 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
                 f"{ROW_NAMES[worst]} {cells[defense]['mean']:.1f} ± {cells[defense]['std']:.1f}", flush=True)
         fresh.append({"env": env, "dagger_clean": reference, "cells": cells})
     out = cfg.out or f"results/defenses_{cfg.mode}"
+    old_path = Path(out).with_suffix(".json")
+    old = json.loads(old_path.read_text()) if old_path.exists() else {}
+    if old.get("mode") == cfg.mode:  # defenses not rerun keep their cells
+        for row in fresh:
+            kept = next((r["cells"] for r in old["rows"] if r["env"] == row["env"]), {})
+            row["cells"] = {d: row["cells"].get(d, kept.get(d)) for d in DEFENSES if d in row["cells"] or d in kept}
     rows = _merge(out, lambda r: (r["env"],), fresh, lambda old: old.get("mode") == cfg.mode)
     envs = [r["env"] for r in rows]
     by_env = {r["env"]: r for r in rows}

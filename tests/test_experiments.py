@@ -69,3 +69,10 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
     assert row["dagger_clean"] == row["cells"]["dagger"]["clean"]
     text = (tmp_path / "def.md").read_text()
     assert "| DAgger, clean |" in text and "| ARIL |" in text
+
+    # a later run of one defense keeps the others' cells
+    payload = defense_table(DefenseTableConfig(envs="Swimmer-v5", defenses="aril", calibration=str(tmp_path / "cal.json"),
+                                               episodes=2, horizon=60, adversary_steps=2000, k=3,
+                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def")), **QUIET)
+    assert set(payload["rows"][0]["cells"]) == {"dagger", "aril"}
+    assert payload["rows"][0]["cells"]["dagger"] == row["cells"]["dagger"]
