@@ -30,8 +30,8 @@ from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_
 DATA_DIR = Path(__file__).resolve().parent / "data"
 BUNDLED_KINDS = ("expert", "bc", "dagger", "dart", "gail", "dr", "aril", "bundled")
 MODE_KINDS = ("dr", "aril")  # trained against one attack mode: one bundled file per env and mode
-# "bundled" is the default bundled policy: the expert until a DAgger learner is bundled for every env
-BUNDLED_DEFAULT = "expert"
+# "bundled" is the default bundled policy: the DAgger learner, the paper's learner under attack
+BUNDLED_DEFAULT = "dagger"
 
 # rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
 HYPERPARAMETERS = {

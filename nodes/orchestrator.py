@@ -51,7 +51,7 @@ class GraphConfig:
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
-    policy: str = arg("bundled", "bundled (the default bundled policy: the expert for now), expert, dagger, dart, gail, "
+    policy: str = arg("bundled", "bundled (the default bundled policy: the DAgger learner), expert, dagger, dart, gail, "
                                  "bc, dr or aril (the one trained against mode:=), a policy "
                                  "file, or external (start none, wait for one)")
     expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")

@@ -55,7 +55,7 @@ def test_bundled_experts_load_with_provenance(env_id):
 
 def test_bundled_is_the_default_bundled_policy():
     np.testing.assert_array_equal(resolve_policy("bundled", "Swimmer-v5").act(np.ones(8)),
-                                  resolve_policy("expert", "Swimmer-v5").act(np.ones(8)))
+                                  resolve_policy("dagger", "Swimmer-v5").act(np.ones(8)))
 
 
 def test_resolve_policy_errors():
