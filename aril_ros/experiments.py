@@ -238,7 +238,10 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
         for defense in defenses:
             policy = str(bundled_file(defense, env, cfg.mode))
             adversary = Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt"
-            if cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
+            bundled = bundled_adversary_path(env, cfg.mode)  # already trained against the bundled DAgger learner
+            if defense == BUNDLED_LEARNER and not cfg.retrain and bundled.exists() and load_adversary(bundled).eps == eps:
+                adversary = bundled
+            elif cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
                 train_adversary(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=policy, expert=cfg.expert,
                                                 steps=cfg.adversary_steps, out=str(adversary)), log=log)
             results = {"none": evaluate(EvalConfig(policy=policy, mode="clean", **common))}
