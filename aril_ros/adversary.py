@@ -215,11 +215,13 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     buf_reward, buf_value, buf_done = torch.zeros(T, n), torch.zeros(T, n), torch.zeros(T, n)
     buf_base = torch.zeros(T, n)
 
-    def unperturbed_loss(states: np.ndarray) -> np.ndarray:
-        """The disagreement the victim would have without the attack: the exact part of the value."""
+    def unperturbed_loss(states: np.ndarray, label: np.ndarray | None = None) -> np.ndarray:
+        """The disagreement the victim would have without the attack: the exact part of the value
+        (``label``: the expert's actions on ``states`` when already known)."""
         if not cfg.baseline:
             return np.zeros(len(states))
-        return ((victim.act(states) - expert.act(states)) ** 2).sum(axis=1)
+        label = expert.act(states) if label is None else label
+        return ((victim.act(states) - label) ** 2).sum(axis=1)
 
     episode_loss, episode_return, discounted = np.zeros(n), np.zeros(n), np.zeros(n)
     return_scale = RunningStd()
@@ -238,11 +240,12 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
             delta[:, :n_pos] = sample.clamp(-cfg.eps, cfg.eps).double().numpy()
             seen = apply_perturbation(cfg.mode, sims, obs, delta)
             action = victim.act(seen)
-            loss = ((action - expert.act(obs)) ** 2).sum(axis=1)
+            label = expert.act(obs)
+            loss = ((action - label) ** 2).sum(axis=1)
             # the perturbation moves the disagreement by little next to how much it varies from state to
             # state, more than a learned value can follow: the unperturbed disagreement, known exactly for
             # every visited state, carries that part of the value
-            base = unperturbed_loss(obs)
+            base = unperturbed_loss(obs, label)
             buf_obs[t], buf_sample[t] = obs_t, sample
             discounted = discounted * cfg.gamma + loss
             return_scale.update(discounted)
