@@ -39,7 +39,7 @@ from .dataset import DaggerDataset
 from .envs import layout_of
 from .experts import git_revision, resolve_policy
 from .learners import fit_policy
-from .mcap_log import load_dagger_dataset, read_run
+from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, save_policy
 from .rollout import RolloutEngine
 
@@ -267,4 +267,4 @@ def collect_through_graph(record: Path, cfg: LearnerConfig, policy: str, mode: s
     run = read_run(record)
     returns = np.bincount(run.episodes, weights=run.reward)
     expert_loss = float(((run.action - run.expert_action) ** 2).sum(axis=1).mean())
-    return load_dagger_dataset(record, cfg.env), returns, expert_loss
+    return dataset_of_run(run, record), returns, expert_loss

@@ -272,6 +272,10 @@ def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: boo
         envs.add(env_id)
     if len(envs) > 1:
         raise RunLogError(f"run logs of different envs cannot make one dataset: {sorted(envs)}")
-    return DaggerDataset.concatenate([
-        DaggerDataset(obs=r.obs, expert_action=r.expert_action, episode=r.episodes, source=[str(p)] * len(r.tags))
-        for p, r in zip(paths, runs)])
+    return DaggerDataset.concatenate([dataset_of_run(r, p) for p, r in zip(paths, runs)])
+
+
+def dataset_of_run(run: RunLog, path) -> DaggerDataset:
+    """The (observation seen, expert action) pairs of one run log already read from ``path``."""
+    return DaggerDataset(obs=run.obs, expert_action=run.expert_action, episode=run.episodes,
+                         source=[str(path)] * len(run.tags))
