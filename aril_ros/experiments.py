@@ -139,6 +139,18 @@ class AttackTableConfig:
 
 
 ATTACK_ROWS = ("none", "random", "fgsm", "fgsm_k", "aril_a")
+
+
+def _trained_for(adversary: Path, eps: float) -> bool:
+    return adversary.exists() and load_adversary(adversary).eps == eps
+
+
+def _ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
+                     retrain: bool, log) -> None:
+    """Train ``adversary`` against ``victim`` when it is missing, of another eps, or ``retrain``."""
+    if retrain or not _trained_for(adversary, eps):
+        train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
+                                        out=str(adversary)), log=log)
 ROW_NAMES = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "aril_a": "ARIL-A"}
 
 
@@ -152,9 +164,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (bundled_adversary_path(env, cfg.mode) if cfg.policy == BUNDLED_LEARNER
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        if cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
-            train_adversary(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
-                                            steps=cfg.adversary_steps, out=str(adversary)), log=log)
+        _ready_adversary(adversary, cfg.policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain, log)
         cells = {}
         for attack in ATTACK_ROWS:
             result = evaluate(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
@@ -233,18 +243,23 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
     for env in _split(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration)
         common = dict(env=env, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, k=cfg.k)
-        reference = evaluate(EvalConfig(policy=str(bundled_file("dagger", env)), mode="clean", **common))["mean_return"]
+        clean_results = {}
+
+        def clean(policy: str) -> dict:  # the DAgger learner's is the reference and maybe a row too: run it once
+            if policy not in clean_results:
+                clean_results[policy] = evaluate(EvalConfig(policy=policy, mode="clean", **common))
+            return clean_results[policy]
+
+        reference = clean(str(bundled_file("dagger", env)))["mean_return"]
         cells = {}
         for defense in defenses:
             policy = str(bundled_file(defense, env, cfg.mode))
             adversary = Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt"
             bundled = bundled_adversary_path(env, cfg.mode)  # already trained against the bundled DAgger learner
-            if defense == BUNDLED_LEARNER and not cfg.retrain and bundled.exists() and load_adversary(bundled).eps == eps:
+            if defense == BUNDLED_LEARNER and not cfg.retrain and _trained_for(bundled, eps):
                 adversary = bundled
-            elif cfg.retrain or not adversary.exists() or load_adversary(adversary).eps != eps:
-                train_adversary(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=policy, expert=cfg.expert,
-                                                steps=cfg.adversary_steps, out=str(adversary)), log=log)
-            results = {"none": evaluate(EvalConfig(policy=policy, mode="clean", **common))}
+            _ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain, log)
+            results = {"none": clean(policy)}
             for threat in THREATS:
                 results[threat] = evaluate(EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
                                                       attack_file=str(adversary) if threat == "aril_a" else "",
