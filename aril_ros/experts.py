@@ -137,12 +137,12 @@ class ExpertConfig:
 
 
 def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=None, label: str = "train-expert",
-                 command: str = "", provenance: dict | None = None) -> Path:
+                 command: str = "", provenance: dict | None = None, status=lambda: "") -> Path:
     """Train on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path.
 
     Learners built on the same loop (GAIL) pass ``wrap_env`` (applied to the gymnasium env, e.g. to
     swap the reward), ``on_rollout_end`` (called after each PPO rollout), their ``label``, the
-    ``command`` that reproduces them and extra ``provenance``."""
+    ``command`` that reproduces them, extra ``provenance`` and a ``status()`` text for the evaluation lines."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -217,7 +217,7 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
         kept = mean > best["mean_return"]
         log(
             f"[{label} {cfg.env}] step {step:>8d}  {record['train_seconds']:8.0f}s  "
-            f"eval return {mean:9.1f} ± {std:7.1f}{'  (best, saved)' if kept else ''}",
+            f"eval return {mean:9.1f} ± {std:7.1f}{'  (best, saved)' if kept else ''}{status()}",
             flush=True,
         )
         if kept:

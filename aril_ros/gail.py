@@ -131,7 +131,5 @@ def train_gail(cfg: GailConfig, log=print) -> Path:
     generator = ExpertConfig(env=cfg.env, algo="ppo", steps=cfg.steps, seed=cfg.seed, eval_every=cfg.eval_every,
                              eval_episodes=cfg.eval_episodes, out=cfg.out or f"runs/gail-{cfg.env}.pt",
                              threads=cfg.threads)
-    return train_expert(generator, log=lambda message, **kw: log(f"{message}  disc loss {stats['disc_loss']:.3f}", **kw)
-                        if message.startswith("[") else log(message, **kw),
-                        wrap_env=wrap, on_rollout_end=train_discriminator, label="train-gail", command=command,
-                        provenance=provenance)
+    return train_expert(generator, log=log, wrap_env=wrap, on_rollout_end=train_discriminator, label="train-gail",
+                        command=command, provenance=provenance, status=lambda: f"  disc loss {stats['disc_loss']:.3f}")
