@@ -51,7 +51,11 @@ class Discriminator(nn.Module):
         super().__init__()
         pairs = np.concatenate([demo_obs, demo_act], axis=1)
         self.register_buffer("mean", torch.as_tensor(pairs.mean(0), dtype=torch.float32))
-        self.register_buffer("std", torch.as_tensor(pairs.std(0) + 1e-3, dtype=torch.float32))
+        std = pairs.std(0)
+        # entries the demonstrations never move (Ant's contact forces on bodies that never touch) keep
+        # unit scale: dividing by ~0 would saturate them and let D win on them alone from the start
+        std = np.where(std > 1e-6, std + 1e-3, 1.0)
+        self.register_buffer("std", torch.as_tensor(std, dtype=torch.float32))
         self.net = nn.Sequential(nn.Linear(pairs.shape[1], hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
                                  nn.Linear(hidden, 1))
 
