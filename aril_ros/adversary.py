@@ -77,13 +77,16 @@ class AdversaryNet(nn.Module):
 
 class LearnedAttack(Attack):
     """ARIL-A at evaluation: ``delta ~ N(f(s), std)`` clipped to ±eps, drawn from the episode's rng
-    (``stochastic``, as the paper samples it), or the mean ``f(s)``."""
+    (``stochastic``, as the paper samples it), or the mean ``f(s)``. With ``eps`` other than the one it
+    was trained with, the whole perturbation is scaled by ``eps / trained eps`` (eps sweeps: the same
+    learned direction, a different budget)."""
 
     name = "aril_a"
 
-    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True):
-        super().__init__(layout, net.eps)
+    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True, eps: float | None = None):
+        super().__init__(layout, net.eps if eps is None else eps)
         self.net, self.stochastic = net, stochastic
+        self.scale = self.eps / net.eps
         self.std = net.log_std.detach().exp().double().numpy()
 
     @torch.inference_mode()
@@ -95,7 +98,7 @@ class LearnedAttack(Attack):
         if self.stochastic:
             for row, rng in enumerate(rngs):
                 delta[row, : self.layout.n_position] += self.std * rng.standard_normal(len(self.std))
-        return delta
+        return delta * self.scale
 
 
 class RunningStd:
@@ -119,6 +122,14 @@ class RunningStd:
 def bundled_adversary_path(env_id: str, mode: str) -> Path:
     """Where the bundled ARIL-A adversary against the bundled learner lives (``attack:=aril_a`` by name)."""
     return DATA_DIR / "adversary" / f"{env_id}-{mode}.pt"
+
+
+def defense_adversary_path(env_id: str, mode: str, defense: str) -> Path:
+    """Where the bundled ARIL-A trained against the bundled learner ``defense`` (``dagger``, ``aril``,
+    ``dart``, ...) lives; the one against DAgger is the default adversary above."""
+    if defense == "dagger":
+        return bundled_adversary_path(env_id, mode)
+    return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
 
 
 def save_adversary(net: AdversaryNet, path: str | Path) -> Path:
@@ -168,6 +179,8 @@ class AdversaryConfig:
     baseline: bool = arg(True, "value = the victim's unperturbed disagreement at the state (computed exactly) + a "
                               "learned remainder, instead of all learned (a control variate: the objective is the same)")
     seed: int = arg(0, "seed of the initial weights, the sampling and the env resets")
+    init: str = arg("", "start from this adversary file (same env, mode, eps and width; its input scaling is kept) "
+                        "instead of fresh weights: ARIL's warm start from the previous round's adversary")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
     threads: int = arg(1, "torch threads")
 
@@ -205,9 +218,15 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     next_seed += n
     meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim, "n_position": n_pos,
             "hidden": cfg.hidden, "obs_mean": obs_mean.tolist(), "obs_std": obs_std.tolist(), "provenance": {}}
-    with torch.random.fork_rng():  # seeded initial weights without touching the global generator
-        torch.manual_seed(cfg.seed)
-        net = AdversaryNet(meta)
+    if cfg.init:
+        net = load_adversary(cfg.init, cfg.env, cfg.mode).train()
+        if (net.eps, net.meta["hidden"]) != (cfg.eps, cfg.hidden):
+            raise ValueError(f"init:={cfg.init} has eps {net.eps} and width {net.meta['hidden']}, "
+                             f"not eps:={cfg.eps} hidden:={cfg.hidden}")
+    else:
+        with torch.random.fork_rng():  # seeded initial weights without touching the global generator
+            torch.manual_seed(cfg.seed)
+            net = AdversaryNet(meta)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
 
     buf_obs = torch.zeros(T, n, layout.obs_dim)

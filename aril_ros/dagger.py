@@ -66,6 +66,8 @@ class LearnerConfig:
     lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
     batch: int = arg(256, "minibatch size")
     adversary_steps: int = arg(300_000, "aril: PPO steps of each round's adversary")
+    warm_start: bool = arg(False, "aril: each round's adversary starts from the previous round's (f_{t-1}) instead of "
+                                  "fresh weights, so it keeps up with a learner that changes a little per round")
     eval_episodes: int = arg(5, "dr and aril: episodes of each learner's clean evaluation (env seeds 500000...)")
     seed: int = arg(0, "seed of the collection (env seeds seed*100000 + round*1000 + i), fits, noise and adversaries")
     run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>[-<mode>]); an existing one is resumed")
@@ -154,8 +156,10 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     state = {"config": config, "rounds": []}
     if state_path.exists():
         state = json.loads(state_path.read_text())
-        if state["config"] != config:
-            changed = sorted(k for k in config if state["config"].get(k) != config[k])
+        defaults = dataclasses.asdict(LearnerConfig())  # a setting added since the run was made had its default
+        stored = {**{k: defaults[k] for k in config}, **state["config"]}
+        if stored != config:
+            changed = sorted(k for k in config if stored.get(k) != config[k])
             raise ValueError(f"{run_dir} holds a run with other settings ({', '.join(changed)}); "
                              f"pick another run_dir:= or repeat its settings")
         log(f"[train-learner {name}] resuming after round {len(state['rounds']) - 1}", flush=True)
@@ -187,7 +191,8 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
             adversary_file = str(run_dir / f"adversary-{r}.pt")
             train_adversary(AdversaryConfig(env=cfg.env, mode=mode, eps=cfg.eps, victim=str(run_dir / f"pi-{r}.pt"),
                                             expert=cfg.expert, steps=cfg.adversary_steps, seed=cfg.seed * 1000 + r,
-                                            out=adversary_file), log=log)
+                                            init=str(run_dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1
+                                            else "", out=adversary_file), log=log)
         attack = make_attack(attack_name if r > 0 else "none", layout, cfg.eps if r > 0 else 0.0, victim=learner,
                              expert=expert, adversary=adversary_file, mode=mode)
         collector, record = learner, {"round": r}
