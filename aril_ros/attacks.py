@@ -145,9 +145,9 @@ def attack_budget(env_id: str, mode: str, attack: str, eps: float) -> float:
 
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
-                adversary: str | None = None, mode: str | None = None) -> Attack:
+                adversary: str | None = None, mode: str | None = None, rescale: bool = False) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a
-    needs an adversary file (its eps is the one it was trained with)."""
+    needs an adversary file (its eps is the one it was trained with, unless ``rescale`` scales it to ``eps``)."""
     if name not in ATTACK_NAMES:
         raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACK_NAMES)}")
     if name == "aril_a":
@@ -160,9 +160,9 @@ def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=No
                                  f"{mode} (looked for {bundled}); pass attack_file:= (from aril train-adversary)")
             adversary = str(bundled)
         net = load_adversary(adversary, layout.env_id, mode)
-        if eps and abs(eps - net.eps) > 1e-12:
-            raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps}")
-        return LearnedAttack(layout, net)
+        if eps and abs(eps - net.eps) > 1e-12 and not rescale:
+            raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps} (rescale:=true scales it)")
+        return LearnedAttack(layout, net, eps=eps if eps and rescale else None)
     if name in WHITE_BOX:
         kwargs = {} if steps is None else {"steps": steps}
         return ATTACKS[name](layout, eps, victim, expert, **kwargs)

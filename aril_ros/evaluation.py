@@ -28,6 +28,7 @@ class EvalConfig:
                           "env and mode, results/eps_calibration.json; aril_a: its adversary's)")
     k: int = arg(10, "steps of fgsm_k")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
+    rescale: bool = arg(False, "aril_a at an eps:= other than its own: scale its perturbation by eps / its eps")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     n_envs: int = arg(32, "simulators run side by side (does not change the results)")
@@ -45,7 +46,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,
-                         adversary=cfg.attack_file, mode=cfg.mode)
+                         adversary=cfg.attack_file, mode=cfg.mode, rescale=cfg.rescale)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     returns = np.zeros(cfg.episodes)

@@ -77,3 +77,33 @@ def test_learned_attack_is_seeded_and_bounded(swimmer_files, tmp_path):
     b = attack.perturb(obs, [np.random.default_rng([1, i]) for i in range(6)])
     np.testing.assert_array_equal(a, b)
     assert np.all(np.abs(a[:, :3]) <= 0.2) and np.all(a[:, 3:] == 0)
+
+
+def test_a_rescaled_learned_attack_is_the_same_perturbation_scaled(swimmer_files, tmp_path):
+    victim, expert = swimmer_files
+    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert),
+                                           steps=0, out=str(tmp_path / "adv.pt")), log=lambda *a, **k: None)
+    obs = np.random.default_rng(0).normal(size=(6, 8))
+    own = make_attack("aril_a", layout_of("Swimmer-v5"), 0.2, adversary=str(path))
+    half = make_attack("aril_a", layout_of("Swimmer-v5"), 0.1, adversary=str(path), rescale=True)
+    a = own.perturb(obs, [np.random.default_rng([1, i]) for i in range(6)])
+    b = half.perturb(obs, [np.random.default_rng([1, i]) for i in range(6)])
+    np.testing.assert_allclose(b, 0.5 * a, rtol=0, atol=1e-15)
+    assert half.eps == 0.1 and np.all(np.abs(b) <= 0.1)
+
+
+def test_training_can_start_from_an_adversary_file(swimmer_files, tmp_path):
+    victim, expert = swimmer_files
+    common = dict(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), n_envs=4, rollout=50)
+    first = train_adversary(AdversaryConfig(**common, steps=400, seed=1, out=str(tmp_path / "a.pt")),
+                            log=lambda *a, **k: None)
+    # with a zero learning rate the started-from weights come out unchanged: init:= is what training starts from
+    kept = train_adversary(AdversaryConfig(**common, steps=400, seed=2, lr=0.0, init=str(first),
+                                           out=str(tmp_path / "b.pt")), log=lambda *a, **k: None)
+    fresh = train_adversary(AdversaryConfig(**common, steps=400, seed=2, lr=0.0, out=str(tmp_path / "c.pt")),
+                            log=lambda *a, **k: None)
+    a, b, c = (load_adversary(p).state_dict() for p in (first, kept, fresh))
+    assert all(torch.equal(a[k], b[k]) for k in a) and not torch.equal(a["mean_net.0.weight"], c["mean_net.0.weight"])
+    with pytest.raises(ValueError, match="has eps 0.2 and width 64, not eps:=0.1 hidden:=64"):
+        train_adversary(AdversaryConfig(**{**common, "eps": 0.1}, steps=0, init=str(first),
+                                        out=str(tmp_path / "d.pt")), log=lambda *a, **k: None)

@@ -119,3 +119,24 @@ def test_rounds_through_the_ros_graph_give_the_in_process_data_set(tmp_path):
     a = json.loads((tmp_path / "inprocess" / "run" / "state.json").read_text())["rounds"]
     b = json.loads((tmp_path / "graph" / "run" / "state.json").read_text())["rounds"]
     assert [r["return"] for r in a] == pytest.approx([r["return"] for r in b], rel=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["sensory", "physical"])
+def test_aril_trains_an_adversary_against_each_learner_and_collects_under_it(tmp_path, mode):
+    from aril_ros.adversary import load_adversary
+
+    train_learner(small(tmp_path, algorithm="aril", mode=mode, eps=0.05, rounds=2, adversary_steps=600,
+                        warm_start=True), log=quiet)
+    run = tmp_path / "run"
+    state = json.loads((run / "state.json").read_text())
+    assert [r["round"] for r in state["rounds"]] == [0, 1, 2] and "clean_return" in state["rounds"][1]
+    for r in (1, 2):  # f_r against pi_r; with warm_start, f_2 starts from f_1
+        provenance = load_adversary(run / f"adversary-{r}.pt", "Swimmer-v5", mode).meta["provenance"]
+        assert provenance["victim"] == str(run / f"pi-{r}.pt")
+        assert (f"init:={run / 'adversary-1.pt'}" in provenance["command"]) == (r == 2)
+    data = np.load(run / "data.npz")
+    attacked = data["round"] == 1
+    assert attacked.sum() == 1000 and (data["round"] == 0).sum() == 1000
+    policy = load_policy(tmp_path / "out.pt")
+    assert policy.meta.provenance["algorithm"] == "aril"
+    assert f"{mode}, aril_a eps 0.05" in policy.meta.provenance["selection"]

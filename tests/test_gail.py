@@ -1,4 +1,5 @@
 import numpy as np
+import torch
 
 from aril_ros.envs import make_gym_env
 from aril_ros.gail import DiscriminatorReward, Discriminator, GailConfig, train_gail
@@ -27,3 +28,11 @@ def test_a_short_gail_run_writes_a_policy_and_its_discriminator_learns(tmp_path)
     assert policy.meta.provenance["command"].startswith("aril train-gail env:=Swimmer-v5")
     losses = [float(line.rsplit("disc loss", 1)[1]) for line in lines if "disc loss" in line]
     assert len(losses) == 2 and losses[-1] < np.log(2)  # better than a coin once trained on a rollout
+
+
+def test_entries_the_demonstrations_never_move_keep_unit_scale():
+    obs = np.random.default_rng(0).normal(size=(50, 4))
+    obs[:, 2] = 0.0  # e.g. Ant's contact force on a body that never touches
+    disc = Discriminator(obs, np.ones((50, 2)), hidden=8)
+    assert disc.std[2] == 1.0 and disc.std[4] == 1.0 and disc.std[5] == 1.0
+    assert torch.allclose(disc.std[[0, 1, 3]], torch.as_tensor(obs[:, [0, 1, 3]].std(0) + 1e-3, dtype=torch.float32))
