@@ -24,6 +24,8 @@ from .gail import GailConfig, train_gail
 from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
 from .policy import PolicyFileError
+from .render import RenderConfig, RenderError, render
+from .report import ReportConfig, build_report
 
 
 def run_eval(cfg: EvalConfig) -> dict:
@@ -93,6 +95,9 @@ COMMANDS = {
                      "The paper's Adversary rows (clean, random, FGSM, FGSM^k, ARIL-A); writes results/."),
     "defense-table": (DefenseTableConfig, defense_table,
                       "The paper's Robust IL rows: each defense under the strongest attack against it; writes results/."),
+    "report": (ReportConfig, build_report,
+               "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
+    "render": (RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
     "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
     "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }
@@ -112,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         run(parse_args(cls, argv[1:]))
-    except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError, OSError) as err:
+    except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError, OSError,
+            RenderError) as err:
         print(f"aril {argv[0]}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
