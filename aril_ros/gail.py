@@ -53,7 +53,7 @@ class Discriminator(nn.Module):
         self.register_buffer("mean", torch.as_tensor(pairs.mean(0), dtype=torch.float32))
         std = pairs.std(0)
         # entries the demonstrations never move (Ant's contact forces on bodies that never touch) keep
-        # unit scale: dividing by ~0 would saturate them and let D win on them alone from the start
+        # unit scale: dividing by ~0 would turn any contact of the generator's there into a saturated input
         std = np.where(std > 1e-6, std + 1e-3, 1.0)
         self.register_buffer("std", torch.as_tensor(std, dtype=torch.float32))
         self.net = nn.Sequential(nn.Linear(pairs.shape[1], hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
