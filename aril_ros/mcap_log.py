@@ -6,7 +6,9 @@ Foxglove:
 - header profile ``ros2``; schemas ``sensor_msgs/msg/JointState`` and ``rosgraph_msgs/msg/Clock``
   in ``ros2msg`` encoding; messages in ``cdr``, byte for byte as the nodes published them;
 - one channel per step topic (:data:`aril_ros.protocol.STEP_TOPICS`) with rosbag2's
-  ``offered_qos_profiles`` metadata;
+  ``offered_qos_profiles`` metadata; with ``run_graph.py render:=true`` also
+  ``/sim/camera/image/compressed`` (``sensor_msgs/msg/CompressedImage``, JPEG, stamped and tagged like
+  its step, written right after its step), which Foxglove shows as video beside the state plots;
 - log time = publish time = the step's sim time, so log times are monotonic and a player paces by
   sim time; each step's messages are written together, in ``STEP_TOPICS`` order, once the step is
   complete, and the file is flushed after every step (a killed run loses no complete step);
@@ -37,6 +39,11 @@ _TIME = "int32 sec\nuint32 nanosec\n"
 SCHEMAS = {
     "sensor_msgs/msg/JointState": (
         "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n"
+        + "=" * 80 + "\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+        + "=" * 80 + "\nMSG: builtin_interfaces/Time\n" + _TIME
+    ),
+    P.CAMERA_TYPE: (
+        "std_msgs/Header header\nstring format\nuint8[] data\n"
         + "=" * 80 + "\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
         + "=" * 80 + "\nMSG: builtin_interfaces/Time\n" + _TIME
     ),
@@ -74,7 +81,7 @@ def cdr_stamp(raw: bytes) -> int:
 class RunLogWriter:
     """Writes complete steps of a run to MCAP; :meth:`close` adds the end metadata and the summary."""
 
-    def __init__(self, path: str | Path, run_metadata: dict):
+    def __init__(self, path: str | Path, run_metadata: dict, camera: bool = False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
@@ -86,7 +93,7 @@ class RunLogWriter:
             topic: self._writer.register_channel(
                 topic=_absolute(topic), message_encoding="cdr", schema_id=schema_ids[msg_type],
                 metadata={"offered_qos_profiles": QOS_YAML})
-            for topic, msg_type in P.MESSAGE_TYPES.items()
+            for topic, msg_type in {**P.MESSAGE_TYPES, **({P.CAMERA: P.CAMERA_TYPE} if camera else {})}.items()
         }
         self._sequence = 0
         self._writer.add_metadata("aril_run", {k: _text(v) for k, v in run_metadata.items()})
@@ -100,6 +107,12 @@ class RunLogWriter:
                                      publish_time=stamp_ns, sequence=self._sequence)
         self._writer.flush()
         self.steps += 1
+
+    def write_frame(self, stamp_ns: int, raw: bytes) -> None:
+        """Write one camera frame (CDR ``CompressedImage``) at its step's sim time."""
+        self._sequence += 1
+        self._writer.add_message(self._channels[P.CAMERA], log_time=stamp_ns, data=raw, publish_time=stamp_ns,
+                                 sequence=self._sequence)
 
     def close(self, **end_metadata) -> None:
         if self._file.closed:
@@ -173,7 +186,8 @@ def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
         order: list[StepTag] = []
         clock_by_stamp = {}
         try:
-            for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            step_topics = [_absolute(t) for t in P.STEP_TOPICS]  # camera frames are not part of a step
+            for _, channel, message, decoded in reader.iter_decoded_messages(topics=step_topics, log_time_order=False):
                 topic = channel.topic
                 if topic == P.CLOCK:
                     clock_by_stamp[message.log_time] = decoded
@@ -252,11 +266,14 @@ def recover(path: str | Path, out: str | Path) -> int:
             pass
     if "aril_run" not in metadata:
         raise RunLogError(f"{path}: not an aril_ros run log; nothing to recover")
-    writer = RunLogWriter(out, metadata["aril_run"])
+    camera = _absolute(P.CAMERA)
+    writer = RunLogWriter(out, metadata["aril_run"], camera=camera in channels.values())
     for stamp in sorted(pending):
         messages = {t: pending[stamp].get(_absolute(t)) for t in P.STEP_TOPICS}
         if all(v is not None for v in messages.values()):
             writer.write_step(stamp, messages)
+            if camera in pending[stamp]:
+                writer.write_frame(stamp, pending[stamp][camera])
     writer.close(interrupted=True, reason=f"recovered from {path.name}")
     return writer.steps
 

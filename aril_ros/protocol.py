@@ -19,6 +19,7 @@ PERTURBATION = "attack/perturbation"  # sensor_msgs/JointState: position = delta
 ACTION = "action"  # sensor_msgs/JointState: effort = the policy's action
 EXPERT_ACTION = "expert/action"  # sensor_msgs/JointState: effort = the expert's action on the true state
 CLOCK = "/clock"  # rosgraph_msgs/Clock: sim time, one message per step
+CAMERA = "sim/camera/image/compressed"  # sensor_msgs/CompressedImage (JPEG), every render_every steps; opt-in
 READY = "graph/ready"  # std_msgs/String, transient local: a node's name once all its endpoints are matched
 RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
 SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
@@ -37,6 +38,8 @@ MESSAGE_TYPES = {
     EXPERT_ACTION: "sensor_msgs/msg/JointState",
     CLOCK: "rosgraph_msgs/msg/Clock",
 }
+
+CAMERA_TYPE = "sensor_msgs/msg/CompressedImage"  # not a step topic: a step is complete without a frame
 
 # Step topics are reliable and keep everything: the chain runs in lockstep, but a slow recorder
 # must throttle the publishers (back-pressure) rather than miss a step.

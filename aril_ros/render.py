@@ -49,9 +49,44 @@ class RenderConfig:
     out: str = arg("", "the GIF (default runs/render-<env>-<mode>.gif)")
 
 
+class FrameRenderer:
+    """Offscreen RGB frames of a :class:`~aril_ros.envs.MujocoSim` from a camera tracking the root body.
+    ``MUJOCO_GL`` must be set (``egl``/``osmesa``) before mujoco is first imported in the process."""
+
+    def __init__(self, sim, width: int, height: int):
+        import mujoco
+
+        self.sim = sim
+        try:
+            self.renderer = mujoco.Renderer(sim.model, height, width)
+        except Exception as err:  # the GL backends raise their own types
+            raise RenderError(f"{GL_HELP} ({type(err).__name__}: {err}; MUJOCO_GL="
+                              f"{os.environ.get('MUJOCO_GL', 'unset')})") from None
+        self.camera = mujoco.MjvCamera()
+        self.camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+        self.camera.trackbodyid = 1  # the root body: the robot stays in frame as it runs
+        self.camera.distance = 3.5  # about gymnasium's default camera (its model extent counts the floor)
+        self.camera.elevation = -20.0
+
+    def rgb(self) -> np.ndarray:
+        self.renderer.update_scene(self.sim.data, self.camera)
+        return self.renderer.render()
+
+    def jpeg(self, quality: int = 80) -> bytes:
+        import io
+
+        from PIL import Image
+
+        buffer = io.BytesIO()
+        Image.fromarray(self.rgb()).save(buffer, "JPEG", quality=quality)
+        return buffer.getvalue()
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
 def _panel_frames(cfg: RenderConfig, policy_name: str, attack_name: str) -> tuple[list[np.ndarray], float]:
     """One panel's labelled frames and its return; runs in a process whose MUJOCO_GL is already set."""
-    import mujoco
     from PIL import Image, ImageDraw
 
     from .adversary import defense_adversary_path
@@ -69,22 +104,13 @@ def _panel_frames(cfg: RenderConfig, policy_name: str, attack_name: str) -> tupl
                          expert=expert, adversary=adversary, mode=mode)
     engine = RolloutEngine(cfg.env, policy, expert, attack, mode, 1, cfg.steps)
     sim = engine.sims[0]
-    try:
-        renderer = mujoco.Renderer(sim.model, cfg.height, cfg.width)
-    except Exception as err:  # the GL backends raise their own types
-        raise RenderError(f"{GL_HELP} ({type(err).__name__}: {err})") from None
-    camera = mujoco.MjvCamera()
-    camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-    camera.trackbodyid = 1  # the root body: the robot stays in frame as it runs
-    camera.distance = 3.5  # about gymnasium's default camera (its model extent counts the floor)
-    camera.elevation = -20.0
+    renderer = FrameRenderer(sim, cfg.width, cfg.height)
     label = f"{policy_name}, {'clean' if attack_name == 'none' else f'{attack_name} eps {attack.eps:g}'}"
     frames, total = [], 0.0
     for step in engine.iter_steps(1, cfg.seed):
         total += float(step.reward[0])
         if step.t % cfg.every == 0 or step.done[0]:
-            renderer.update_scene(sim.data, camera)
-            image = Image.fromarray(renderer.render())
+            image = Image.fromarray(renderer.rgb())
             draw = ImageDraw.Draw(image)
             draw.rectangle((0, 0, cfg.width, 32), fill=(0, 0, 0))  # the labels stay legible on any floor
             draw.text((6, 4), label, fill=(255, 255, 255))

@@ -60,6 +60,10 @@ class GraphConfig:
     domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
     connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
     step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck")
+    render: bool = arg(False, "record camera frames: the simulator renders offscreen (MuJoCo on the CPU, MUJOCO_GL=egl "
+                              "unless set) and publishes sim/camera/image/compressed (JPEG), the log keeps them")
+    render_every: int = arg(5, "render:=true: a frame every this many steps")
+    render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
 
 
 class GraphError(RuntimeError):
@@ -154,7 +158,8 @@ class Orchestrator:
         common = {"env": cfg.env}
         policy, expert = (_node_path(name, cfg.env, cfg.mode) for name in (cfg.policy, cfg.expert))
         specs = {
-            "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode},
+            "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode,
+                          **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "expert": expert,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
@@ -163,7 +168,10 @@ class Orchestrator:
         }
         if cfg.policy != "external":
             specs["policy"] = {**common, "policy": policy}
-        self.nodes = [NodeProcess(name, params, self.log_dir, env) for name, params in specs.items()]
+        node_env = {name: env for name in specs}
+        if cfg.render:  # mujoco picks its GL backend on import: the simulator's process needs it set
+            node_env["simulator"] = {**env, "MUJOCO_GL": env.get("MUJOCO_GL", "egl")}
+        self.nodes = [NodeProcess(name, params, self.log_dir, node_env[name]) for name, params in specs.items()]
 
     def check_nodes(self) -> None:
         """Raise if the user interrupted the run or a node died; every wait loop calls this."""
@@ -215,7 +223,7 @@ class Orchestrator:
         os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
         self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
                  f"domain={domain} logs={self.log_dir}", file=sys.stderr)
-        writer = RunLogWriter(self.record, self.run_metadata()) if self.record else None
+        writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
         recorder = StepRecorder(writer)
         ros = None
         interrupted, reason = False, ""
@@ -224,7 +232,7 @@ class Orchestrator:
         previous = {sig: signal.signal(sig, self._request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             self.start_nodes(env)
-            ros = GraphClient(recorder)
+            ros = GraphClient(recorder, camera=self.cfg.render)
             self.wait_connected(ros)
             started = time.monotonic()
             for episode in range(self.cfg.episodes):
@@ -280,6 +288,7 @@ class Orchestrator:
             "max_abs_delta": round(max(s["max_delta"] for s in stats), 6),
             "steps": steps, "steps_per_s": round(steps / seconds, 1),
             "record": str(self.record) if self.record else None, "domain": domain,
+            **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
         }
 
 
@@ -308,10 +317,27 @@ class StepRecorder:
         self.episode_stats: list[dict] = []
         self.steps_written = 0
         self.episode = -1
+        self.frames: dict[StepTag, tuple[int, bytes]] = {}  # camera frames whose step is not written yet
+        self.last_written: StepTag | None = None
+        self.frames_written = 0
 
     def start_episode(self, episode: int) -> None:
         self.episode, self.episode_done, self.episode_steps = episode, False, 0
         self.current = {"return": 0.0, "sq_loss": 0.0, "steps": 0, "max_delta": 0.0}
+
+    def on_frame(self, raw: bytes) -> None:
+        """A camera frame goes into the log right after its step (log times stay in sim-time order)."""
+        stamp, frame_id = cdr_header(raw)
+        tag = StepTag.parse(frame_id)
+        if self.last_written is not None and tag <= self.last_written:
+            self._write_frame(stamp, raw)
+        else:
+            self.frames[tag] = (stamp, raw)
+
+    def _write_frame(self, stamp: int, raw: bytes) -> None:
+        if self.writer is not None:
+            self.writer.write_frame(stamp, raw)
+        self.frames_written += 1
 
     def on_message(self, topic: str, raw: bytes) -> None:
         if topic == P.CLOCK:
@@ -342,6 +368,9 @@ class StepRecorder:
             msgs[P.CLOCK] = self.clock.pop(stamp)
             if self.writer is not None:
                 self.writer.write_step(stamp, msgs)
+            self.last_written = tag
+            if tag in self.frames:
+                self._write_frame(*self.frames.pop(tag))
             reward, terminated, truncated = deserialize_message(msgs[P.REWARD], JointState).position
             action = np.array(deserialize_message(msgs[P.ACTION], JointState).effort)
             expert = np.array(deserialize_message(msgs[P.EXPERT_ACTION], JointState).effort)
@@ -372,7 +401,7 @@ class StepRecorder:
 class GraphClient:
     """The orchestrator's own ROS node: raw subscriptions for the recorder and the reset client."""
 
-    def __init__(self, recorder: StepRecorder):
+    def __init__(self, recorder: StepRecorder, camera: bool = False):
         import rclpy
         from rcl_interfaces.srv import SetParametersAtomically
         from rclpy.experimental import EventsExecutor
@@ -393,6 +422,11 @@ class GraphClient:
                                                  lambda raw, topic=topic: recorder.on_message(topic, raw),
                                                  STEP_QOS, raw=True)
             for topic, msg_type in P.MESSAGE_TYPES.items()}
+        if camera:
+            from sensor_msgs.msg import CompressedImage
+
+            self.subscriptions[P.CAMERA] = self.node.create_subscription(CompressedImage, P.CAMERA, recorder.on_frame,
+                                                                         STEP_QOS, raw=True)
         self.ready: set[str] = set()
         self.node.create_subscription(String, P.READY, lambda msg: self.ready.add(msg.data), READY_QOS)
         self.reset_client = self.node.create_client(SetParametersAtomically, P.RESET_SERVICE)

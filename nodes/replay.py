@@ -30,12 +30,13 @@ def replay(cfg: ReplayConfig, log=print) -> int:
     from mcap.reader import make_reader
     from rclpy.signals import SignalHandlerOptions
     from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
+    from sensor_msgs.msg import CompressedImage, JointState
 
     from nodes.common import STEP_QOS
 
     read_run(cfg.file, allow_interrupted=True)  # refuse foreign or cut-short files before publishing
-    classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock}
+    classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock,
+               "sensor_msgs/msg/CompressedImage": CompressedImage}  # camera frames of render:=true
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("replay")
     count = 0

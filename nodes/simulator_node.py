@@ -1,7 +1,10 @@
 """Simulator node: one MuJoCo env, stepped in lockstep with the policy's actions.
 
 Parameters: ``env`` (gymnasium MuJoCo id), ``horizon`` (steps per episode), ``mode`` (clean |
-sensory | physical: which peers it waits for before announcing itself ready).
+sensory | physical: which peers it waits for before announcing itself ready), ``render_every``
+(0: off; n: a JPEG frame of every n-th step of an episode on ``sim/camera/image/compressed``, rendered offscreen,
+which needs ``MUJOCO_GL=egl`` or ``osmesa`` in the node's environment) and ``render_size``
+(``"<width>x<height>"``).
 
 After ``sim/reset`` (seed, episode) it publishes step 0: ``/clock``, ``sim/physics_state`` and
 ``sim/state``. It steps only when the ``action`` tagged with the current step arrives (an action for
@@ -43,6 +46,8 @@ class SimulatorNode(Node):
         action_sub = self.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
         self.create_service(SetParametersAtomically, P.RESET_SERVICE, self.on_reset)
         self.create_service(SetParametersAtomically, P.SET_STATE_SERVICE, self.on_set_state)
+        self.render_every = declared(self, "render_every", 0)
+        self.camera = self._camera(declared(self, "render_size", "320x240")) if self.render_every > 0 else None
         physical = declared(self, "mode", "sensory") == "physical"
         self.ready = ReadyAnnouncer(self, {  # the attacker, the expert and the recorder listen; the policy answers
             "3 subscribers on sim/state": subscribers(self.state_pub, 3),
@@ -51,8 +56,25 @@ class SimulatorNode(Node):
             "a subscriber on /clock": subscribers(self.clock_pub, 1),
             "2 subscribers on observation": subscribers(self.observation_pub, 2 if physical else 0),
             "a publisher on action (the policy)": publishers(action_sub),
+            **({"a subscriber on the camera": subscribers(self.camera_pub, 1)} if self.camera else {}),
         })
         self.get_logger().info(f"{self.sim.layout.env_id}: obs {len(self.obs_names)}, act {self.act_dim}")
+
+    def _camera(self, size: str):
+        from sensor_msgs.msg import CompressedImage
+
+        from aril_ros.render import FrameRenderer, RenderError
+
+        try:
+            width, height = (int(v) for v in size.lower().split("x"))
+            camera = FrameRenderer(self.sim, width, height)
+        except ValueError:
+            raise FatalNodeError(f"render_size must be <width>x<height>, got {size!r}") from None
+        except RenderError as err:
+            raise FatalNodeError(str(err)) from None
+        self.camera_pub = self.create_publisher(CompressedImage, P.CAMERA, STEP_QOS)
+        self._image_type = CompressedImage
+        return camera
 
     def header(self):
         return step_header(self.tag, stamp_ns(self.global_step, self.sim.dt))
@@ -62,6 +84,8 @@ class SimulatorNode(Node):
         self.clock_pub.publish(Clock(clock=header.stamp))
         self.physics_pub.publish(joint_state(header, self.sim.state_names, self.sim.get_state()))
         self.state_pub.publish(joint_state(header, self.obs_names, self.sim.observe()))
+        if self.camera is not None and self.tag.step % self.render_every == 0:
+            self.camera_pub.publish(self._image_type(header=header, format="jpeg", data=self.camera.jpeg()))
 
     def on_reset(self, request, response):
         params = request_params(request)

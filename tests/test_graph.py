@@ -448,3 +448,31 @@ def test_aril_a_trains_against_a_policy_node_over_ros(tmp_path):
     adversary = load_adversary(tmp_path / "adv.pt", "Swimmer-v5", "sensory")
     assert adversary.meta["provenance"]["steps"] == 1024
     assert "over ROS" in adversary.meta["provenance"]["victim_provenance"]["victim"]
+
+
+def test_render_records_camera_frames_beside_the_steps(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from PIL import Image
+    import io
+
+    policy, expert = policy_files(tmp_path, "Swimmer-v5")
+    out = run_graph("env:=Swimmer-v5", "mode:=physical", f"policy:={policy}", f"expert:={expert}", "episodes:=2",
+                    "horizon:=12", "render:=true", "render_every:=5", "render_size:=64x48",
+                    f"record:={tmp_path / 'run.mcap'}")
+    summary = summary_of(out)
+    assert summary["camera_frames"] == 6  # steps 0, 5, 10 of each episode
+    run = read_run(tmp_path / "run.mcap")  # the step reader is unaffected by the extra topic
+    assert len(run.tags) == 24
+    with open(tmp_path / "run.mcap", "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        frames = [(m.log_time, d) for _, _, m, d in reader.iter_decoded_messages(topics=["/sim/camera/image/compressed"])]
+    state_stamp = dict(zip(map(str, run.tags), run.stamp_ns))
+    assert [d.header.frame_id for _, d in frames] == ["0/0", "0/5", "0/10", "1/0", "1/5", "1/10"]
+    for log_time, image in frames:
+        assert log_time == state_stamp[image.header.frame_id] and image.format == "jpeg"
+        assert Image.open(io.BytesIO(bytes(image.data))).size == (64, 48)
+    recovered = tmp_path / "recovered.mcap"
+    assert recover(tmp_path / "run.mcap", recovered) == 24
+    with open(recovered, "rb") as f:
+        assert len(list(make_reader(f).iter_messages(topics=["/sim/camera/image/compressed"]))) == 6
