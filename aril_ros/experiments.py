@@ -16,7 +16,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .adversary import AdversaryConfig, bundled_adversary_path, load_adversary, train_adversary
+from .adversary import (AdversaryConfig, bundled_adversary_path, defense_adversary_path, load_adversary,
+                        train_adversary)
 from .args import arg, command_line
 from .attacks import calibrated_eps
 from .evaluation import EvalConfig, evaluate
@@ -222,8 +223,8 @@ class DefenseTableConfig:
     seed: int = arg(3000, "env seed of the first episode (and of the attack noise)")
     k: int = arg(10, "FGSM^k steps")
     adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense")
-    adversary_dir: str = arg("runs/defense-adversaries", "where the adversaries against each defense go (reused "
-                                                         "when they exist with the same eps)")
+    adversary_dir: str = arg("", "where the adversaries against each defense go (default: the bundled ones, "
+                                 "aril_ros/data/defense-adversary/); reused when they exist with the same eps")
     retrain: bool = arg(False, "train the adversaries even if they exist")
     horizon: int = arg(1000, "steps per episode")
     out: str = arg("", "output path without suffix (default: results/defenses_<mode>)")
@@ -254,10 +255,8 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
         cells = {}
         for defense in defenses:
             policy = str(bundled_file(defense, env, cfg.mode))
-            adversary = Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt"
-            bundled = bundled_adversary_path(env, cfg.mode)  # already trained against the bundled DAgger learner
-            if defense == BUNDLED_LEARNER and not cfg.retrain and _trained_for(bundled, eps):
-                adversary = bundled
+            adversary = (Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt" if cfg.adversary_dir
+                         else defense_adversary_path(env, cfg.mode, defense))
             _ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain, log)
             results = {"none": clean(policy)}
             for threat in THREATS:
