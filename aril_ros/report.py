@@ -1,0 +1,487 @@
+"""``aril report``: ``docs/results.md`` regenerated from scratch, every figure traceable.
+
+    aril report budget:=quick          # under ~30 min on 2 cores: the bundled policies and adversaries
+    aril report budget:=full           # the paper's protocol: 3 training seeds, 50 episodes, wide sweeps
+
+What it runs, in order:
+
+1. **Performance** (first, on an idle machine): ``benchmarks/bench_engine.py``, ``bench_graph.py`` and
+   ``bench_adversary.py`` as subprocesses, their closing JSON lines read back; ratios to raw MuJoCo.
+2. **Policies and adversaries** per defense, env, mode and training seed. Seed 0 is the bundled policy
+   (``aril_ros/data/<defense>/``) and the bundled ARIL-A trained against it
+   (``aril_ros/data/defense-adversary/``, ``adversary/`` for DAgger); other seeds are trained here with
+   the same commands and ``seed:=`` (``aril train-learner``, ``aril train-gail``, then
+   ``aril train-adversary``) into ``<work_dir>/``. A missing or failed one makes its cells say why.
+3. **Evaluations**, two at a time in spawned processes: every policy clean and under random, FGSM,
+   FGSM^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks at
+   multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps). Each evaluation is
+   cached in ``<work_dir>/cache/`` under a key of its arguments and the files' digests, so an
+   interrupted report resumes and a changed policy is evaluated again.
+4. **Report**: tables in the paper's layout beside the paper's figures, sweeps and ARIL's rounds as
+   PNG (matplotlib), optional GIFs of an attack (``render:=true``), the comparison with the paper.
+
+Files written (all committed: the report is built from them)::
+
+    docs/results.md                      the report
+    docs/results/report.json             every evaluation (per-episode returns), file digests, benchmarks
+    docs/results/sweep-<env>-<mode>.png  return vs eps per defense, one panel per attack
+    docs/results/aril-rounds.png         ARIL's clean and attacked return per round
+    docs/results/attack-<env>-<mode>.gif clean | attacked DAgger | attacked ARIL (render:=true)
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import datetime
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .adversary import defense_adversary_path, load_adversary
+from .args import arg, command_line
+from .attacks import calibrated_eps
+from .experiments import PAPER_ENVS_ARG, ROW_NAMES, _ready_adversary, _split, _trained_for
+from .experts import bundled_file, git_revision
+from .policy import PolicyFileError, load_weights
+from .report_text import report_markdown
+
+REPO = Path(__file__).resolve().parent.parent
+DEFENSES = ("dagger", "gail", "dr", "dart", "aril")  # the paper's rows, in its order
+DEFENSE_NAMES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL"}
+THREATS = ("random", "fgsm", "fgsm_k", "aril_a")
+ATTACK_ROWS = ("none", "fgsm", "fgsm_k", "aril_a")  # the Adversary rows: attacks on the DAgger learner
+PAPER_ENV = {"HalfCheetah-v5": "HalfCheetah-v2", "Ant-v5": "Ant-v2", "Swimmer-v5": "Swimmer-v2"}
+# The paper's Tables 1 and 2 (v2 envs): return and drop from its clean DAgger; rows it does not report are absent.
+PAPER = {
+    "sensory": {
+        ("dagger", "none"): {"Ant-v5": (1245, 0.0), "HalfCheetah-v5": (3276, 0.0), "Swimmer-v5": (81, 0.0)},
+        ("dagger", "fgsm"): {"Ant-v5": (945, -24.1), "HalfCheetah-v5": (2336, -28.7), "Swimmer-v5": (66, -18.5)},
+        ("dagger", "fgsm_k"): {"Ant-v5": (884, -28.9), "HalfCheetah-v5": (1973, -39.8), "Swimmer-v5": (57, -29.6)},
+        ("dagger", "aril_a"): {"Ant-v5": (607, -51.2), "HalfCheetah-v5": (830, -74.7), "Swimmer-v5": (38, -53.1)},
+        ("gail", "worst"): {"Ant-v5": (638, -48.8), "HalfCheetah-v5": (1037, -68.3), "Swimmer-v5": (42, -48.1)},
+        ("dr", "worst"): {"Ant-v5": (679, -45.5), "HalfCheetah-v5": (1372, -58.1), "Swimmer-v5": (56, -30.9)},
+        ("dart", "worst"): {"Ant-v5": (779, -37.4), "HalfCheetah-v5": (1832, -44.1), "Swimmer-v5": (49, -39.5)},
+        ("aril", "worst"): {"Ant-v5": (965, -22.5), "HalfCheetah-v5": (2974, -9.2), "Swimmer-v5": (72, -11.1)},
+    },
+    "physical": {
+        ("dagger", "none"): {"Ant-v5": (1245, 0.0), "HalfCheetah-v5": (3276, 0.0), "Swimmer-v5": (81, 0.0)},
+        ("dagger", "fgsm"): {"Ant-v5": (885, -28.9), "HalfCheetah-v5": (2100, -35.9), "Swimmer-v5": (61, -24.7)},
+        ("dagger", "aril_a"): {"Ant-v5": (158, -87.3), "HalfCheetah-v5": (249, -92.5), "Swimmer-v5": (16, -80.2)},
+        ("dart", "worst"): {"Ant-v5": (581, -53.3), "HalfCheetah-v5": (1078, -67.1), "Swimmer-v5": (27, -66.7)},
+        ("aril", "worst"): {"Ant-v5": (903, -27.5), "HalfCheetah-v5": (2183, -33.4), "Swimmer-v5": (56, -30.1)},
+    },
+}
+PAPER_OVERALL = {"sensory": {("dagger", "none"): 0.0, ("dagger", "fgsm"): -23.7, ("dagger", "fgsm_k"): -32.7,
+                             ("dagger", "aril_a"): -59.7, ("gail", "worst"): -55.1, ("dr", "worst"): -44.8,
+                             ("dart", "worst"): -40.3, ("aril", "worst"): -14.3},
+                 "physical": {("dagger", "none"): 0.0, ("dagger", "fgsm"): -29.8, ("dagger", "aril_a"): -86.7,
+                              ("dart", "worst"): -62.4, ("aril", "worst"): -30.3}}
+TABLE_ROWS = (("dagger", "none"), ("dagger", "fgsm"), ("dagger", "fgsm_k"), ("dagger", "aril_a"),
+              ("gail", "worst"), ("dr", "worst"), ("dart", "worst"), ("aril", "worst"))
+BUDGETS = {
+    "quick": dict(seeds="0", episodes=10, sweep_episodes=5, sweep_scales="0.5,2",
+                  sweep_attacks="random,fgsm,aril_a", bench_steps=10_000),
+    "full": dict(seeds="0,1,2", episodes=50, sweep_episodes=20, sweep_scales="0.25,0.5,1.5,2,3",
+                 sweep_attacks="random,fgsm,fgsm_k,aril_a", bench_steps=50_000),
+}
+# Student's t, two-sided 95%, by degrees of freedom (the interval of a mean over seeds or episodes)
+T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228,
+       15: 2.131, 20: 2.086, 30: 2.042, 40: 2.021, 60: 2.000, 120: 1.980}
+
+
+@dataclass
+class ReportConfig:
+    """Arguments of ``aril report``; 0 or empty takes the budget's value."""
+
+    budget: str = arg("quick", "quick (bundled policies, 1 seed, 10 episodes: under ~30 min on 2 cores) or full "
+                               "(3 training seeds, 50 episodes, wide sweeps: the paper's protocol, many hours; "
+                               "resumable)")
+    envs: str = arg(PAPER_ENVS_ARG, "comma-separated env ids")
+    modes: str = arg("sensory,physical", "comma-separated attack modes")
+    seeds: str = arg("", "training seeds per defense (seed 0: the bundled policies; others are trained)")
+    episodes: int = arg(0, "deterministic evaluation episodes per table cell and seed (env seeds 3000...)")
+    sweep_episodes: int = arg(0, "episodes per eps-sweep point and seed")
+    sweep_scales: str = arg("", "eps sweep points as multiples of the calibrated eps (besides 0 and 1)")
+    sweep_attacks: str = arg("", "attacks of the eps sweeps")
+    adversary_steps: int = arg(1_000_000, "ARIL-A steps against each defense and seed that has no adversary yet")
+    horizon: int = arg(1000, "steps per episode (the paper's 1000; fewer only for a smoke test)")
+    workers: int = arg(2, "evaluations run side by side")
+    perf: bool = arg(True, "run the benchmarks (the performance section)")
+    bench_steps: int = arg(0, "steps per engine and adversary benchmark")
+    render: bool = arg(False, "render GIFs of an attack (MuJoCo offscreen on the CPU) for render_envs")
+    render_envs: str = arg("HalfCheetah-v5", "envs to render when render:=true (both modes each)")
+    work_dir: str = arg("runs/report", "trained seeds, their adversaries and the evaluation cache")
+    fresh: bool = arg(False, "ignore cached evaluations")
+    out: str = arg("docs/results.md", "the report; its figures and JSON go to <out without .md>/")
+
+
+def _resolved(cfg: ReportConfig) -> ReportConfig:
+    if cfg.budget not in BUDGETS:
+        raise ValueError(f"unknown budget {cfg.budget!r}; choose one of {', '.join(BUDGETS)}")
+    values = {k: getattr(cfg, k) or v for k, v in BUDGETS[cfg.budget].items()}
+    return ReportConfig(**{**cfg.__dict__, **values})
+
+
+def t95(df: int) -> float:
+    return T95[max(k for k in T95 if k <= max(df, 1))]
+
+
+def summarise(per_seed: list[list[float]]) -> dict:
+    """Mean and 95% interval of returns grouped by training seed: over the seed means when there are
+    several seeds (seed-to-seed variation is what a reader wants bounded), else over the episodes."""
+    means = np.array([np.mean(r) for r in per_seed])
+    units = means if len(per_seed) > 1 else np.asarray(per_seed[0], dtype=float)
+    half = t95(len(units) - 1) * units.std(ddof=1) / math.sqrt(len(units)) if len(units) > 1 else float("nan")
+    return {"mean": float(means.mean()), "ci95": float(half), "median": float(np.median(np.concatenate(per_seed))),
+            "seeds": len(per_seed), "episodes": len(per_seed[0]), "ci_over": "seeds" if len(per_seed) > 1 else "episodes"}
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def _relative(path: Path) -> str:
+    path = Path(path).resolve()
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+
+
+class Artifacts:
+    """Policy and adversary files per (defense, env, mode, seed): the bundled ones for seed 0, trained
+    into ``work_dir`` otherwise. A file that cannot be had is recorded with the reason."""
+
+    def __init__(self, cfg: ReportConfig, log):
+        self.cfg, self.log, self.work = cfg, log, Path(cfg.work_dir)
+        self.missing: dict[tuple, str] = {}
+
+    def policy(self, defense: str, env: str, mode: str, seed: int) -> Path | None:
+        key = ("policy", defense, env, mode, seed)
+        try:
+            if seed == 0:
+                return bundled_file(defense, env, mode)
+            return self._train_policy(defense, env, mode, seed)
+        except (PolicyFileError, ValueError, RuntimeError, OSError) as err:
+            self.missing[key] = str(err)
+            self.log(f"[report] no {defense} policy for {env} {mode} seed {seed}: {err}", flush=True)
+            return None
+
+    def _train_policy(self, defense: str, env: str, mode: str, seed: int) -> Path:
+        from .dagger import LearnerConfig, train_learner
+        from .gail import GailConfig, train_gail
+
+        per_mode = defense in ("dr", "aril")
+        name = f"{defense}-{env}{f'-{mode}' if per_mode else ''}-seed{seed}"
+        out = self.work / "policies" / f"{name}.pt"
+        if out.exists():
+            return out
+        self.log(f"[report] training {name}", flush=True)
+        if defense == "gail":
+            return train_gail(GailConfig(env=env, seed=seed, out=str(out)), log=self.log)
+        return train_learner(LearnerConfig(algorithm=defense, env=env, mode=mode if per_mode else "sensory",
+                                           seed=seed, run_dir=str(self.work / "learners" / name), out=str(out)),
+                             log=self.log)
+
+    def adversary(self, defense: str, env: str, mode: str, seed: int, policy: Path, eps: float) -> Path | None:
+        bundled = defense_adversary_path(env, mode, defense)
+        if seed == 0 and _trained_for(bundled, eps):
+            return bundled
+        path = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
+        try:
+            _ready_adversary(path, str(policy), env, mode, eps, "expert", self.cfg.adversary_steps, False, self.log)
+            return path
+        except (ValueError, RuntimeError, OSError) as err:
+            self.missing[("adversary", defense, env, mode, seed)] = str(err)
+            return None
+
+
+def _evaluate_job(job: dict) -> list[float]:
+    from .evaluation import EvalConfig, evaluate
+
+    return evaluate(EvalConfig(**job))["returns"]
+
+
+def _job_key(job: dict) -> str:
+    files = {k: digest(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}
+    return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
+
+
+def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
+    """Per-episode returns of each evaluation, from the cache or computed ``cfg.workers`` at a time."""
+    cache = Path(cfg.work_dir) / "cache"
+    cache.mkdir(parents=True, exist_ok=True)
+    results: list[list[float] | None] = [None] * len(jobs)
+    todo = []
+    for i, job in enumerate(jobs):
+        hit = cache / f"{_job_key(job)}.json"
+        if hit.exists() and not cfg.fresh:
+            results[i] = json.loads(hit.read_text())["returns"]
+        else:
+            todo.append(i)
+    log(f"[report] {len(jobs)} evaluations: {len(jobs) - len(todo)} cached, {len(todo)} to run", flush=True)
+    started = time.time()
+    with concurrent.futures.ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_evaluate_job, jobs[i]): i for i in todo}
+        for n, future in enumerate(concurrent.futures.as_completed(futures), 1):
+            i = futures[future]
+            results[i] = future.result()
+            (cache / f"{_job_key(jobs[i])}.json").write_text(json.dumps({"job": jobs[i], "returns": results[i]}))
+            job = jobs[i]
+            log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
+                f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(results[i]):.1f}", flush=True)
+    return results
+
+
+def run_benchmarks(cfg: ReportConfig, log) -> dict:
+    """The three benchmarks, back to back in this run; each one's closing JSON line."""
+    env = "HalfCheetah-v5"
+    commands = {
+        "engine": ["benchmarks/bench_engine.py", f"env:={env}", f"steps:={cfg.bench_steps}"],
+        "graph": ["benchmarks/bench_graph.py", f"env:={env}", f"steps:={max(cfg.bench_steps // 10, 1000)}",
+                  "seconds:=3"],
+        "adversary": ["benchmarks/bench_adversary.py", f"env:={env}", f"steps:={max(cfg.bench_steps * 4, 16384)}"],
+    }
+    figures = {}
+    for name, command in commands.items():
+        log(f"[report] benchmark: python {' '.join(command)}", flush=True)
+        done = subprocess.run([sys.executable, *command], cwd=REPO, capture_output=True, text=True)
+        lines = [ln for ln in done.stdout.splitlines() if ln.startswith("{")]
+        if done.returncode or not lines:
+            figures[name] = {"error": (done.stderr.strip().splitlines() or ["no output"])[-1],
+                             "command": " ".join(command)}
+            continue
+        figures[name] = {**json.loads(lines[-1]), "command": "python " + " ".join(command)}
+    return figures
+
+
+def _cell(results: dict, defense: str, attack: str) -> dict | None:
+    per_seed = results.get((defense, attack))
+    return summarise(per_seed) if per_seed else None
+
+
+def table_cells(evals: dict, env: str, mode: str) -> dict:
+    """Each table row's summary for one env and mode; defenses under their worst attack (by mean)."""
+    results = {(d, a): r for (e, m, d, a, scale), r in evals.items() if e == env and m == mode and scale in (0.0, 1.0)}
+    cells = {}
+    for defense, attack in TABLE_ROWS:
+        if attack != "worst":
+            cells[(defense, attack)] = _cell(results, defense, attack)
+            continue
+        candidates = {t: c for t in THREATS if (c := _cell(results, defense, t))}
+        if not candidates:
+            cells[(defense, attack)] = None
+            continue
+        worst = min(candidates, key=lambda t: candidates[t]["mean"])
+        cells[(defense, attack)] = {**candidates[worst], "attack": worst,
+                                    "clean": (_cell(results, defense, "none") or {}).get("mean")}
+    return cells
+
+
+def _fmt_paper(mode: str, row: tuple, env: str) -> str:
+    figure = PAPER[mode].get(row, {}).get(env)
+    if figure is None:
+        return "—"
+    return f"{figure[0]:,}" + ("" if row == ("dagger", "none") else f" ({figure[1]:+.1f}%)")
+
+
+def _row_label(row: tuple) -> str:
+    defense, attack = row
+    if defense == "dagger":
+        return "DAgger, clean" if attack == "none" else f"{ROW_NAMES[attack]} (on DAgger)"
+    return DEFENSE_NAMES[defense]
+
+
+def table_markdown(mode: str, envs: list[str], cells: dict, eps: dict, missing: dict) -> tuple[list[str], dict]:
+    """The paper's layout: our figure (95% interval, drop, worst attack) beside the paper's, per env."""
+    header = ("| | " + " | ".join(f"{e} ours (eps {eps[e]:g}) | {PAPER_ENV[e]} paper" for e in envs)
+              + " | overall ours | overall paper |")
+    lines = [header, "|---|" + "---|---|" * len(envs) + "---|---|"]
+    overall = {}
+    for row in TABLE_ROWS:
+        parts, drops = [], []
+        for env in envs:
+            cell = cells[env].get(row)
+            reference = (cells[env].get(("dagger", "none")) or {}).get("mean")
+            if cell is None:
+                why = next((v for k, v in missing.items() if k[1:4] == (row[0], env, mode)), "not evaluated")
+                parts.append(f"missing: {why[:80]}")
+            else:
+                drop = 100.0 * (cell["mean"] / reference - 1.0) if reference else float("nan")
+                drops.append(drop)
+                text = f"{cell['mean']:.0f} ± {cell['ci95']:.0f}"
+                if row != ("dagger", "none"):
+                    text += f" ({drop:+.1f}%{', ' + ROW_NAMES[cell['attack']] if 'attack' in cell else ''})"
+                parts.append(text)
+            parts.append(_fmt_paper(mode, row, env))
+        overall[row] = sum(drops) / len(drops) if len(drops) == len(envs) else None
+        paper_overall = PAPER_OVERALL[mode].get(row)
+        lines.append(f"| {_row_label(row)} | " + " | ".join(parts)
+                     + f" | {'—' if overall[row] is None else f'{overall[row]:+.1f}%'}"
+                     + f" | {'—' if paper_overall is None else f'{paper_overall:+.1f}%'} |")
+    return lines, overall
+
+
+def plot_sweeps(evals: dict, env: str, mode: str, attacks: list[str], eps0: float, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(attacks), figsize=(4.2 * len(attacks), 3.4), squeeze=False)
+    for ax, attack in zip(axes[0], attacks):
+        for defense in DEFENSES:
+            points = sorted((scale, summarise(r)) for (e, m, d, a, scale), r in evals.items()
+                            if e == env and m == mode and d == defense and a in (attack, "none"))
+            if not points:
+                continue
+            x = [scale * eps0 for scale, _ in points]
+            y = np.array([s["mean"] for _, s in points])
+            ci = np.nan_to_num(np.array([s["ci95"] for _, s in points]))
+            ax.plot(x, y, marker="o", ms=3, label=DEFENSE_NAMES[defense])
+            ax.fill_between(x, y - ci, y + ci, alpha=0.15)
+        ax.axvline(eps0, color="grey", lw=0.8, ls=":")
+        ax.set_title(f"{ROW_NAMES[attack]}")
+        ax.set_xlabel("eps (dotted: calibrated)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("return")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle(f"{env}, {mode} attacks: return vs eps (mean, 95% interval)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _command_arg(command: str, key: str) -> str:
+    return next(word.split(":=", 1)[1] for word in command.split() if word.startswith(f"{key}:="))
+
+
+def aril_rounds(artifacts: dict) -> dict:
+    """ARIL's per-round clean and attacked return, from each ARIL policy file's provenance."""
+    curves = {}
+    for (defense, env, mode, seed), path in artifacts.items():
+        if defense != "aril" or path is None:
+            continue
+        provenance = load_weights(path)[0]["provenance"]
+        rounds = provenance.get("rounds_log", [])
+        curves[f"{env} {mode} seed {seed}"] = {
+            "round": [r["round"] for r in rounds], "attacked": [r["return"] for r in rounds],
+            "clean": [r.get("clean_return", r["return"]) for r in rounds],  # round 0: the expert's clean demos
+            "selected": provenance.get("selected"), "adversary_steps": int(_command_arg(provenance["command"], "adversary_steps"))}
+    return curves
+
+
+def plot_rounds(curves: dict, envs: list[str], modes: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(modes), len(envs), figsize=(4.2 * len(envs), 3.0 * len(modes)), squeeze=False)
+    for i, mode in enumerate(modes):
+        for j, env in enumerate(envs):
+            ax = axes[i][j]
+            for name, curve in curves.items():
+                if not name.startswith(f"{env} {mode} "):
+                    continue
+                seed = name.rsplit(" ", 1)[-1]
+                ax.plot(curve["round"], curve["clean"], marker="o", ms=3, label=f"clean, seed {seed}")
+                ax.plot(curve["round"], curve["attacked"], marker="s", ms=3, ls="--", label=f"under f_t, seed {seed}")
+                if curve["selected"]:
+                    ax.axvline(int(curve["selected"].split("_")[1]), color="grey", lw=0.8, ls=":")
+            ax.set_title(f"{env} {mode}", fontsize=9)
+            ax.set_xlabel("round (dotted: returned policy)")
+            ax.grid(alpha=0.3)
+            if j == 0:
+                ax.set_ylabel("return")
+    axes[0][-1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def build_report(cfg: ReportConfig, log=print) -> Path:
+    cfg = _resolved(cfg)
+    started = time.time()
+    envs, modes = _split(cfg.envs), _split(cfg.modes)
+    seeds = [int(s) for s in _split(cfg.seeds)]
+    scales = [float(s) for s in _split(cfg.sweep_scales)]
+    if cfg.workers < 1 or cfg.horizon < 1:
+        raise ValueError("workers:= and horizon:= must be at least 1")
+    if any(s <= 0 or s == 1.0 for s in scales):
+        raise ValueError(f"sweep_scales:= takes multiples other than 0 and 1 (those are the tables'), got {scales}")
+    sweep_attacks = _split(cfg.sweep_attacks)
+    out = Path(cfg.out)
+    figures_dir = out.with_suffix("")
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    stamp = {"command": command_line("aril report", cfg), "git_revision": git_revision(),
+             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+             "cores": os.cpu_count()}
+    benchmarks = run_benchmarks(cfg, log) if cfg.perf else {}
+
+    store = Artifacts(cfg, log)
+    eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
+    policies, adversaries, jobs, keys = {}, {}, [], []
+    for env in envs:
+        for mode in modes:
+            for defense in DEFENSES:
+                for seed in seeds:
+                    policy = policies.setdefault((defense, env, mode, seed), store.policy(defense, env, mode, seed))
+                    if policy is None:
+                        continue
+                    adversary = store.adversary(defense, env, mode, seed, policy, eps[env, mode])
+                    adversaries[(defense, env, mode, seed)] = adversary
+                    plan = [("none", 0.0, cfg.episodes)] + [(t, 1.0, cfg.episodes) for t in THREATS]
+                    plan += [(a, s, cfg.sweep_episodes) for a in sweep_attacks for s in scales]
+                    for attack, scale, episodes in plan:
+                        if attack == "aril_a" and adversary is None:
+                            continue
+                        jobs.append({"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
+                                     "attack": attack, "eps": round(scale * eps[env, mode], 6),
+                                     "attack_file": str(adversary) if attack == "aril_a" else "",
+                                     "rescale": attack == "aril_a", "episodes": episodes, "seed": 3000,
+                                     "horizon": cfg.horizon})
+                        keys.append((env, mode, defense, attack, scale, seed))
+    returns = run_jobs(jobs, cfg, log)
+    evals: dict[tuple, list[list[float]]] = {}
+    for (env, mode, defense, attack, scale, seed), r in zip(keys, returns):
+        evals.setdefault((env, mode, defense, attack, scale), []).append(r)
+
+    tables, overall, cells = {}, {}, {}
+    for mode in modes:
+        cells[mode] = {env: table_cells(evals, env, mode) for env in envs}
+        tables[mode], overall[mode] = table_markdown(mode, envs, cells[mode], {e: eps[e, mode] for e in envs},
+                                                     store.missing)
+        for env in envs:
+            plot_sweeps(evals, env, mode, sweep_attacks, eps[env, mode], figures_dir / f"sweep-{env}-{mode}.png")
+    curves = aril_rounds(policies)
+    plot_rounds(curves, envs, modes, figures_dir / "aril-rounds.png")
+    gifs = []
+    if cfg.render:
+        from .render import RenderConfig, render
+
+        for env in _split(cfg.render_envs):
+            for mode in modes:
+                gifs.append(render(RenderConfig(env=env, mode=mode, width=240, height=180, steps=240, every=4,
+                                                out=str(figures_dir / f"attack-{env}-{mode}.gif")), log=log))
+
+    files = {_relative(p): digest(p) for p in {*policies.values(), *adversaries.values()} if p is not None}
+    payload = {**stamp, "budget": cfg.budget, "seconds": round(time.time() - started, 1), "envs": envs,
+               "modes": modes, "seeds": seeds, "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
+               "episode_seeds": f"3000..{3000 + max(cfg.episodes, cfg.sweep_episodes) - 1}",
+               "files": files, "missing": {" ".join(map(str, k)): v for k, v in store.missing.items()},
+               "benchmarks": benchmarks, "aril_rounds": curves,
+               "overall_drop": {m: {f"{d} {a}": v for (d, a), v in o.items()} for m, o in overall.items()},
+               "evaluations": [{"key": dict(zip(("env", "mode", "defense", "attack", "scale", "seed"), k)),
+                                "job": {**j, "policy": _relative(Path(j["policy"])),
+                                        "attack_file": j["attack_file"] and _relative(Path(j["attack_file"]))},
+                                "mean": float(np.mean(r)), "returns": r} for k, j, r in zip(keys, jobs, returns)]}
+    (figures_dir / "report.json").write_text(json.dumps(payload, indent=1) + "\n")
+    out.write_text(report_markdown(payload, tables, cells, overall, out, gifs))
+    log(f"[report] wrote {out} and {figures_dir}/ in {time.time() - started:.0f}s", flush=True)
+    return out

@@ -1,0 +1,168 @@
+"""The markdown of ``docs/results.md``: built only from the figures ``aril report`` computed (its
+``report.json``), so regenerating the report regenerates every sentence that quotes a number."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .envs import layout_of
+from .experiments import ROW_NAMES
+
+NAMES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL"}
+PAPER_CLEAN = {"HalfCheetah-v5": 3276, "Ant-v5": 1245, "Swimmer-v5": 81}
+PAPER_OBS_DIM = {"HalfCheetah-v5": 17, "Ant-v5": 111, "Swimmer-v5": 8}  # the -v2 envs the paper used
+
+
+def _drop(cell: dict | None, reference: dict | None) -> float | None:
+    if not cell or not reference or not reference["mean"]:
+        return None
+    return 100.0 * (cell["mean"] / reference["mean"] - 1.0)
+
+
+def _list(items: list[str]) -> str:
+    return ", ".join(items) if items else "none"
+
+
+def comparison(payload: dict, cells: dict) -> list[str]:
+    """Where our attack is stronger or weaker and our defenses hold more or less than the paper's."""
+    lines = []
+    for mode, by_env in cells.items():
+        strongest, weaker, most_robust, aril_rank = [], [], [], []
+        for env, row in by_env.items():
+            clean = row.get(("dagger", "none"))
+            attacks = {a: _drop(row.get(("dagger", a)), clean) for a in ("fgsm", "fgsm_k", "aril_a")}
+            attacks = {a: d for a, d in attacks.items() if d is not None}
+            if "aril_a" in attacks and len(attacks) > 1:
+                best_other = min((a for a in attacks if a != "aril_a"), key=lambda a: attacks[a])
+                target = strongest if attacks["aril_a"] <= attacks[best_other] else weaker
+                target.append(f"{env} ({attacks['aril_a']:+.1f}% vs {ROW_NAMES[best_other]} "
+                              f"{attacks[best_other]:+.1f}%)")
+            defenses = {d: row.get((d, "worst")) for d in ("gail", "dr", "dart", "aril")}
+            defenses = {d: c for d, c in defenses.items() if c}
+            if clean:  # DAgger's own worst case is the undefended baseline
+                worst_dagger = min((row.get(("dagger", a)) for a in ("fgsm", "fgsm_k", "aril_a")
+                                    if row.get(("dagger", a))), key=lambda c: c["mean"], default=None)
+                if worst_dagger:
+                    defenses["dagger"] = worst_dagger
+            ranked = sorted(defenses, key=lambda d: -defenses[d]["mean"])
+            if ranked:
+                most_robust.append(f"{env}: {NAMES[ranked[0]]} ({defenses[ranked[0]]['mean']:.0f})")
+            if "aril" in ranked:
+                aril_rank.append(f"{env}: {ranked.index('aril') + 1} of {len(ranked)}")
+        overall = payload["overall_drop"].get(mode, {})
+        aril_overall = overall.get("aril worst")
+        lines += [f"**{mode.capitalize()} attacks.** ARIL-A is the strongest attack on DAgger in {_list(strongest)}; "
+                  f"weaker than the best gradient attack in {_list(weaker)} (the paper: strongest in all three). "
+                  f"Most robust defense under its worst attack: {_list(most_robust)}. ARIL's rank: {_list(aril_rank)} "
+                  f"(the paper: first everywhere). ARIL's overall drop: "
+                  f"{'—' if aril_overall is None else f'{aril_overall:+.1f}%'} "
+                  f"(the paper: {'-14.3%' if mode == 'sensory' else '-30.3%'}).", ""]
+    envs = payload["envs"]
+    clean = {env: next(iter(cells.values()))[env].get(("dagger", "none")) for env in envs}
+    lines += ["**Likely reasons.**", "",
+              "- *Expert and learner strength.* Our clean DAgger learners score "
+              + ", ".join(f"{env} {clean[env]['mean']:.0f} (paper {PAPER_CLEAN[env]})" for env in envs if clean[env])
+              + ". Stronger, faster gaits visit a narrower band of states, so the same perturbation takes the "
+                "learner further outside its data; drops in % are not comparable across such different baselines.",
+              "- *eps.* Ours are calibrated on our DAgger learners by the paper's rule (the largest eps whose FGSM "
+              "drop stays within 40%): " + ", ".join(f"{k} {v:g}" for k, v in payload["eps"].items())
+              + ". The paper's per-env values are in its supplement, which we do not have; a larger sensory eps "
+                "(Swimmer 0.3) makes every defense's worst case harsher.",
+              "- *Env versions.* v5 on MuJoCo 3 against v2 on mujoco-py; observation sizes "
+              + ", ".join(f"{env} {layout_of(env).obs_dim} (v2 {PAPER_OBS_DIM[env]})" for env in envs)
+              + ". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
+                "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls).",
+              "- *ARIL's adversary budget.* Each ARIL round trains its adversary for "
+              + _list(sorted({f"{c['adversary_steps']:,}" for c in payload['aril_rounds'].values()}))
+              + " steps, while the evaluation's ARIL-A against the finished learner trains for 1,000,000: the learner "
+                "is judged against a stronger adversary than any it trained on. The paper does not give its per-round "
+                "budget.",
+              "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds" if len(payload["seeds"]) > 1 else
+                                    "One training seed (the quick budget): the intervals cover episode noise only, "
+                                    "not seed-to-seed variation; `budget:=full` trains 3 seeds per defense."), ""]
+    return lines
+
+
+def performance(benchmarks: dict) -> list[str]:
+    if not benchmarks:
+        return ["Not run (`perf:=false`)."]
+    lines = []
+    engine, graph, adversary = benchmarks.get("engine", {}), benchmarks.get("graph", {}), benchmarks.get("adversary", {})
+    raw = engine.get("raw env.step")
+    if raw:
+        lines += [f"HalfCheetah-v5, steps/s and ratio to raw MuJoCo (`env.step`, {raw:.0f} steps/s), one torch thread:",
+                  "", "| mode | in-process engine (32 envs) | vs raw | ROS graph (5 processes) | vs raw | "
+                      "graph + MCAP record | vs raw |", "|---|---|---|---|---|---|---|"]
+        for mode in ("clean", "sensory", "physical"):
+            e, g = engine.get(f"engine {mode}"), graph.get(mode, {})
+            row = [e, g.get("graph"), g.get("graph+record")]
+            lines.append(f"| {mode} | " + " | ".join("—" if v is None else f"{v:.0f} | {v / raw:.2f}" for v in row)
+                         + " |")
+        lines += ["", f"rclpy two-process ping-pong: {graph.get('ping_pong_round_trips_per_s', float('nan')):.0f} "
+                      "round trips/s (the graph's ceiling).", ""]
+    if adversary and "error" not in adversary:
+        base = adversary.get("SB3 PPO (1 env)")
+        lines += ["Adversary training, env steps/s (HalfCheetah-v5, one torch thread), ratio to stable-baselines3 PPO "
+                  "on one env:", "", "| trainer | steps/s | ratio |", "|---|---|---|"]
+        lines += [f"| {k} | {v:.0f} | {v / base:.2f}x |" for k, v in adversary.items()
+                  if isinstance(v, float) and base]
+        lines.append("")
+    for name, figures in benchmarks.items():
+        if "error" in figures:
+            lines.append(f"- {name} benchmark failed: {figures['error']} (`{figures['command']}`)")
+    lines.append("Commands: " + "; ".join(f"`{f['command']}`" for f in benchmarks.values()) + ".")
+    return lines
+
+
+def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out: Path, gifs: list[Path]) -> str:
+    figures = out.with_suffix("").name  # links relative to the report
+    seeds = payload["seeds"]
+    lines = [
+        "# Results: attacks and defenses on MuJoCo (aril_ros)", "",
+        f"Regenerated by `{payload['command']}` at git revision `{payload['git_revision']}` on {payload['created']} "
+        f"({payload['cores']} cores, {payload['seconds'] / 60:.0f} min). Every figure below is in "
+        f"[`{figures}/report.json`]({figures}/report.json): each evaluation's arguments and per-episode returns, "
+        "and the sha256 digest of every policy and adversary file used (listed at the end with the command that "
+        "made it).", "",
+        "## Protocol", "",
+        f"- Envs: {', '.join(payload['envs'])} (gymnasium v5, horizon 1000); the paper used the v2 envs.",
+        f"- Budget `{payload['budget']}`: training seeds {', '.join(map(str, seeds))} per defense (seed 0 is the "
+        "bundled policy); deterministic policies, evaluation env seeds " + payload["episode_seeds"] + ".",
+        "- Each cell: mean ± the half-width of a 95% Student-t interval (over the training seeds' means when there "
+        "are several, else over the episodes); in brackets the drop from clean DAgger and, for a defense, the attack "
+        "that hurt it most among random, FGSM, FGSM^k (10 steps) and an ARIL-A trained against that very defense.",
+        "- eps per env and mode: the calibrated one (`results/eps_calibration.json`).", "",
+    ]
+    for mode in tables:
+        number = 1 if mode == "sensory" else 2
+        lines += [f"## Table {number}: {mode} attacks", "", *tables[mode], ""]
+    lines += ["## Comparison with the paper", "", *comparison(payload, cells)]
+    lines += ["## eps sweeps", "",
+              "Return vs eps (0 = clean, the dotted line = the calibrated eps) for each defense under each attack. "
+              "ARIL-A's points away from the calibrated eps scale the perturbation of the adversary trained at it.", ""]
+    for mode in payload["modes"]:
+        for env in payload["envs"]:
+            lines += [f"![{env} {mode}]({figures}/sweep-{env}-{mode}.png)", ""]
+    lines += ["## ARIL's rounds", "",
+              "Clean return and return under that round's adversary f_t, per round (round 0: the expert's "
+              "demonstrations); the dotted line marks the returned policy (the best under its own adversary).", "",
+              f"![ARIL rounds]({figures}/aril-rounds.png)", "",
+              "| run | rounds | returned | adversary steps per round |", "|---|---|---|---|"]
+    lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {c['adversary_steps']:,} |"
+              for name, c in payload["aril_rounds"].items()]
+    lines += ["", "## Performance", "", *performance(payload["benchmarks"]), ""]
+    lines += ["## Seeing an attack", ""]
+    if gifs:
+        lines += ["Left to right: DAgger clean, DAgger under the ARIL-A trained against it, ARIL under the ARIL-A "
+                  "trained against it (`aril render`, MuJoCo offscreen on the CPU).", ""]
+        lines += [f"![{Path(g).stem}]({figures}/{Path(g).name})" for g in gifs]
+    else:
+        lines.append("Not rendered in this run (`render:=true` renders; `aril render` does one env and mode).")
+    lines += ["", "## Files", "", "| file | sha256 (12) |", "|---|---|"]
+    lines += [f"| `{f}` | {d} |" for f, d in sorted(payload["files"].items())]
+    if payload["missing"]:
+        lines += ["", "Could not be produced:", ""]
+        lines += [f"- {k}: {v}" for k, v in payload["missing"].items()]
+    lines += ["", "Each file's provenance (training command, git revision, seeds) is inside it: "
+                  "`python -c \"from aril_ros.policy import load_weights; print(load_weights('FILE')[0]"
+                  "['provenance'])\"` (add `, 'adversary'` for an adversary).", ""]
+    return "\n".join(lines)

@@ -1,0 +1,63 @@
+import json
+
+import numpy as np
+import pytest
+
+from aril_ros.report import ReportConfig, build_report, summarise, t95, table_markdown
+
+
+def quiet(*args, **kwargs):
+    pass
+
+
+def test_intervals_are_over_seed_means_when_there_are_several_seeds():
+    one = summarise([[1.0, 2.0, 3.0, 4.0]])
+    assert one["ci_over"] == "episodes" and one["mean"] == 2.5
+    assert one["ci95"] == pytest.approx(t95(3) * np.std([1, 2, 3, 4], ddof=1) / 2)
+    three = summarise([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0]])
+    assert three["ci_over"] == "seeds" and three["mean"] == 20.0
+    assert three["ci95"] == pytest.approx(4.303 * 10.0 / np.sqrt(3))  # t(2) * sd of the seed means / sqrt(3)
+    assert t95(25) == 2.086  # the nearest tabled df below: a slightly wider interval, never a narrower one
+
+
+def test_a_cell_that_could_not_be_produced_says_why():
+    cells = {"Swimmer-v5": {("dagger", "none"): {"mean": 100.0, "ci95": 1.0}}}
+    missing = {("policy", "gail", "Swimmer-v5", "sensory", 0): "no bundled gail for Swimmer-v5"}
+    lines, overall = table_markdown("sensory", ["Swimmer-v5"], cells, {"Swimmer-v5": 0.3}, missing)
+    gail = next(line for line in lines if line.startswith("| GAIL |"))
+    assert "missing: no bundled gail for Swimmer-v5" in gail and overall[("gail", "worst")] is None
+    assert "| DAgger, clean | 100 ± 1 | 81 |" in lines[2]
+
+
+def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp_path):
+    cfg = ReportConfig(envs="Swimmer-v5", modes="physical", episodes=2, sweep_episodes=1, horizon=40, perf=False,
+                       work_dir=str(tmp_path / "work"), out=str(tmp_path / "docs" / "results.md"))
+    logged = []
+    out = build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
+    text = out.read_text()
+    figures = tmp_path / "docs" / "results"
+    payload = json.loads((figures / "report.json").read_text())
+    # 5 defenses x (clean + 4 attacks + 3 sweep attacks x 2 scales)
+    assert len(payload["evaluations"]) == 5 * (5 + 3 * 2)
+    for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
+                "DART", "ARIL"):
+        assert f"| {row} |" in text
+    assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
+    assert (figures / "sweep-Swimmer-v5-physical.png").stat().st_size > 10_000
+    assert (figures / "aril-rounds.png").exists() and "results/aril-rounds.png" in text
+    # every table figure is the mean of the episodes recorded in the JSON
+    dagger_clean = next(e for e in payload["evaluations"]
+                        if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
+    assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
+    assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
+    logged.clear()
+    build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
+    assert any("55 evaluations: 55 cached, 0 to run" in line for line in logged)
+    assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
+
+
+def test_bad_report_arguments_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="unknown budget"):
+        build_report(ReportConfig(budget="huge"), log=quiet)
+    with pytest.raises(ValueError, match="multiples other than 0 and 1"):
+        build_report(ReportConfig(sweep_scales="0.5,1", perf=False, out=str(tmp_path / "r.md")), log=quiet)
