@@ -9,9 +9,9 @@ What it runs, in order:
    ``bench_adversary.py`` as subprocesses, their closing JSON lines read back; ratios to raw MuJoCo.
 2. **Policies and adversaries** per defense, env, mode and training seed. Seed 0 is the bundled policy
    (``aril_ros/data/<defense>/``) and the bundled ARIL-A trained against it
-   (``aril_ros/data/defense-adversary/``, ``adversary/`` for DAgger); other seeds are trained here with
-   the same commands and ``seed:=`` (``aril train-learner``, ``aril train-gail``, then
-   ``aril train-adversary``) into ``<work_dir>/``. A missing or failed one makes its cells say why.
+   (``aril_ros/data/defense-adversary/``, ``adversary/`` for DAgger); other seeds are trained here by
+   the bundled policy's own command (from its provenance) with ``seed:=`` changed, then an ARIL-A
+   against each, into ``<work_dir>/``. A missing or failed one makes its cells say why.
 3. **Evaluations**, two at a time in spawned processes: every policy clean and under random, FGSM,
    FGSM^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks at
    multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps). Each evaluation is
@@ -37,6 +37,7 @@ import json
 import math
 import multiprocessing
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -46,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from .adversary import defense_adversary_path, load_adversary
-from .args import arg, command_line
+from .args import arg, command_line, parse_args
 from .attacks import calibrated_eps
 from .experiments import PAPER_ENVS_ARG, ROW_NAMES, _ready_adversary, _split, _trained_for
 from .experts import bundled_file, git_revision
@@ -173,19 +174,21 @@ class Artifacts:
             return None
 
     def _train_policy(self, defense: str, env: str, mode: str, seed: int) -> Path:
+        """Seed ``seed`` of a defense: the bundled policy's own training command with ``seed:=`` changed."""
         from .dagger import LearnerConfig, train_learner
         from .gail import GailConfig, train_gail
 
-        per_mode = defense in ("dr", "aril")
-        name = f"{defense}-{env}{f'-{mode}' if per_mode else ''}-seed{seed}"
+        name = f"{defense}-{env}{f'-{mode}' if defense in ('dr', 'aril') else ''}-seed{seed}"
         out = self.work / "policies" / f"{name}.pt"
         if out.exists():
             return out
-        self.log(f"[report] training {name}", flush=True)
+        words = shlex.split(load_weights(bundled_file(defense, env, mode))[0]["provenance"]["command"])
+        kept = [w for w in words[2:] if w.split(":=")[0] not in ("seed", "out", "run_dir")]
+        self.log(f"[report] training {name}: {' '.join(words[:2] + kept)} seed:={seed}", flush=True)
         if defense == "gail":
-            return train_gail(GailConfig(env=env, seed=seed, out=str(out)), log=self.log)
-        return train_learner(LearnerConfig(algorithm=defense, env=env, mode=mode if per_mode else "sensory",
-                                           seed=seed, run_dir=str(self.work / "learners" / name), out=str(out)),
+            return train_gail(parse_args(GailConfig, kept + [f"seed:={seed}", f"out:={out}"]), log=self.log)
+        return train_learner(parse_args(LearnerConfig, kept + [f"seed:={seed}", f"out:={out}",
+                                                              f"run_dir:={self.work / 'learners' / name}"]),
                              log=self.log)
 
     def adversary(self, defense: str, env: str, mode: str, seed: int, policy: Path, eps: float) -> Path | None:

@@ -3,6 +3,8 @@ import json
 import numpy as np
 import pytest
 
+from aril_ros.experts import bundled_file
+from aril_ros.policy import load_weights
 from aril_ros.report import ReportConfig, build_report, summarise, t95, table_markdown
 
 
@@ -61,3 +63,20 @@ def test_bad_report_arguments_are_refused(tmp_path):
         build_report(ReportConfig(budget="huge"), log=quiet)
     with pytest.raises(ValueError, match="multiples other than 0 and 1"):
         build_report(ReportConfig(sweep_scales="0.5,1", perf=False, out=str(tmp_path / "r.md")), log=quiet)
+
+
+def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, monkeypatch):
+    from aril_ros import dagger
+    from aril_ros.report import Artifacts
+
+    seen = []
+    monkeypatch.setattr(dagger, "train_learner", lambda cfg, log: seen.append(cfg) or cfg.out)
+    store = Artifacts(ReportConfig(work_dir=str(tmp_path)), quiet)
+    out = store.policy("aril", "Swimmer-v5", "physical", 2)
+    bundled = load_weights(bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]["command"]
+    cfg = seen[0]
+    assert out == str(tmp_path / "policies" / "aril-Swimmer-v5-physical-seed2.pt") and cfg.seed == 2
+    for word in bundled.split()[2:]:
+        key, value = word.split(":=")
+        if key not in ("seed", "out", "run_dir"):
+            assert str(getattr(cfg, key)) == value, key
