@@ -110,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         for name, (_, _, summary) in COMMANDS.items():
             print(f"  {name:<14} {summary}")
         return 0 if not argv or argv[0] in ("-h", "--help") else 2
+    if argv[0] == "report":  # the spelling: aril report --quick / --full
+        argv = [f"budget:={a[2:]}" if a in ("--quick", "--full") else a for a in argv]
     cls, run, summary = COMMANDS[argv[0]]
     cls = cls if isinstance(cls, type) else cls()
     if "-h" in argv[1:] or "--help" in argv[1:]:

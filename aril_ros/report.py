@@ -145,6 +145,13 @@ def summarise(per_seed: list[list[float]]) -> dict:
             "seeds": len(per_seed), "episodes": len(per_seed[0]), "ci_over": "seeds" if len(per_seed) > 1 else "episodes"}
 
 
+def _uncommitted() -> str:
+    """A mark on the revision when tracked files differ from it: the figures may not be reproducible from it."""
+    done = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO, capture_output=True,
+                          text=True)
+    return " (with uncommitted changes)" if done.returncode == 0 and done.stdout.strip() else ""
+
+
 def digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
 
@@ -422,7 +429,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     out = Path(cfg.out)
     figures_dir = out.with_suffix("")
     figures_dir.mkdir(parents=True, exist_ok=True)
-    stamp = {"command": command_line("aril report", cfg), "git_revision": git_revision(),
+    stamp = {"command": command_line("aril report", cfg), "git_revision": git_revision() + _uncommitted(),
              "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
              "cores": os.cpu_count()}
     benchmarks = run_benchmarks(cfg, log) if cfg.perf else {}
