@@ -6,6 +6,7 @@ from pathlib import Path
 
 from .envs import layout_of
 from .experiments import ROW_NAMES
+from .paper import PAPER_OVERALL, TABLE_ROWS
 
 NAMES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL"}
 PAPER_CLEAN = {"HalfCheetah-v5": 3276, "Ant-v5": 1245, "Swimmer-v5": 81}
@@ -50,12 +51,16 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                 aril_rank.append(f"{env}: {ranked.index('aril') + 1} of {len(ranked)}")
         overall = payload["overall_drop"].get(mode, {})
         aril_overall = overall.get("aril worst")
+        side_by_side = [f"{ROW_NAMES[a] if d == 'dagger' else NAMES[d]} {overall[f'{d} {a}']:+.1f}% "
+                        f"({'—' if (p := PAPER_OVERALL[mode].get((d, a))) is None else f'{p:+.1f}%'})"
+                        for d, a in TABLE_ROWS[1:] if overall.get(f"{d} {a}") is not None]
         lines += [f"**{mode.capitalize()} attacks.** ARIL-A is the strongest attack on DAgger in {_list(strongest)}; "
                   f"weaker than the best gradient attack in {_list(weaker)} (the paper: strongest in all three). "
                   f"Most robust defense under its worst attack: {_list(most_robust)}. ARIL's rank: {_list(aril_rank)} "
                   f"(the paper: first everywhere). ARIL's overall drop: "
                   f"{'—' if aril_overall is None else f'{aril_overall:+.1f}%'} "
-                  f"(the paper: {'-14.3%' if mode == 'sensory' else '-30.3%'}).", ""]
+                  f"(the paper: {'-14.3%' if mode == 'sensory' else '-30.3%'}). Overall drops, ours (the paper's): "
+                  f"{_list(side_by_side)}.", ""]
     envs = payload["envs"]
     clean = {env: next(iter(cells.values()))[env].get(("dagger", "none")) for env in envs}
     lines += ["**Likely reasons.**", "",
