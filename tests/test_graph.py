@@ -476,3 +476,24 @@ def test_render_records_camera_frames_beside_the_steps(tmp_path):
     assert recover(tmp_path / "run.mcap", recovered) == 24
     with open(recovered, "rb") as f:
         assert len(list(make_reader(f).iter_messages(topics=["/sim/camera/image/compressed"]))) == 6
+
+
+@pytest.mark.parametrize("algorithm", ["gail", "dart", "dr"])
+def test_trained_defenses_load_in_the_policy_node(algorithm, tmp_path):
+    from aril_ros.dagger import LearnerConfig, train_learner
+    from aril_ros.gail import GailConfig, train_gail
+
+    quiet = lambda *a, **k: None  # noqa: E731
+    if algorithm == "gail":
+        policy = train_gail(GailConfig(env="Swimmer-v5", steps=2048, eval_every=2048, eval_episodes=1, demos=1,
+                                       out=str(tmp_path / "p.pt")), log=quiet)
+    else:
+        policy = train_learner(LearnerConfig(algorithm=algorithm, env="Swimmer-v5", mode="sensory", eps=0.05, rounds=1,
+                                             episodes=1, epochs=1, eval_episodes=1, run_dir=str(tmp_path / "run"),
+                                             out=str(tmp_path / "p.pt")), log=quiet)
+    summary = summary_of(run_graph("env:=Swimmer-v5", "mode:=sensory", f"policy:={policy}", "episodes:=1",
+                                   "horizon:=8", f"record:={tmp_path / 'run.mcap'}"))
+    run = read_run(tmp_path / "run.mcap")
+    trainer = "aril train-gail" if algorithm == "gail" else "aril train-learner"
+    assert summary["steps"] == 8 and run.metadata["policy_provenance"]["command"].startswith(trainer)
+    np.testing.assert_array_equal(run.action, load_policy(policy).act(run.obs))  # the node acts as the file does
