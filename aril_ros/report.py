@@ -61,8 +61,8 @@ DEFENSE_NAMES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART",
 THREATS = ("random", "fgsm", "fgsm_k", "aril_a")
 ATTACK_ROWS = ("none", "fgsm", "fgsm_k", "aril_a")  # the Adversary rows: attacks on the DAgger learner
 BUDGETS = {
-    "quick": dict(seeds="0", episodes=10, sweep_episodes=5, sweep_scales="0.5,2",
-                  sweep_attacks="random,fgsm,aril_a", bench_steps=10_000),
+    "quick": dict(seeds="0", episodes=20, sweep_episodes=10, sweep_scales="0.5,2",
+                  sweep_attacks="random,fgsm,fgsm_k,aril_a", bench_steps=10_000),
     "full": dict(seeds="0,1,2", episodes=50, sweep_episodes=20, sweep_scales="0.25,0.5,1.5,2,3",
                  sweep_attacks="random,fgsm,fgsm_k,aril_a", bench_steps=50_000),
 }
@@ -75,7 +75,7 @@ T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8:
 class ReportConfig:
     """Arguments of ``aril report``; 0 or empty takes the budget's value."""
 
-    budget: str = arg("quick", "quick (bundled policies, 1 seed, 10 episodes: under ~30 min on 2 cores) or full "
+    budget: str = arg("quick", "quick (bundled policies, 1 seed, 20 episodes: under ~30 min on 2 cores) or full "
                                "(3 training seeds, 50 episodes, wide sweeps: the paper's protocol, many hours; "
                                "resumable)")
     envs: str = arg(PAPER_ENVS_ARG, "comma-separated env ids")
@@ -340,8 +340,11 @@ def plot_sweeps(evals: dict, env: str, mode: str, attacks: list[str], eps0: floa
     plt.close(fig)
 
 
-def _command_arg(command: str, key: str) -> str:
-    return next(word.split(":=", 1)[1] for word in command.split() if word.startswith(f"{key}:="))
+def _command_arg(command: str, key: str, default: str | None = None) -> str:
+    found = [word.split(":=", 1)[1] for word in shlex.split(command) if word.startswith(f"{key}:=")]
+    if not found and default is None:
+        raise ValueError(f"{key}:= is not in the command {command!r}")
+    return found[0] if found else default
 
 
 def aril_rounds(artifacts: dict) -> dict:
@@ -355,7 +358,8 @@ def aril_rounds(artifacts: dict) -> dict:
         curves[f"{env} {mode} seed {seed}"] = {
             "round": [r["round"] for r in rounds], "attacked": [r["return"] for r in rounds],
             "clean": [r.get("clean_return", r["return"]) for r in rounds],  # round 0: the expert's clean demos
-            "selected": provenance.get("selected"), "adversary_steps": int(_command_arg(provenance["command"], "adversary_steps"))}
+            "selected": provenance.get("selected"), "adversary_steps": int(_command_arg(provenance["command"], "adversary_steps")),
+            "warm_start": _command_arg(provenance["command"], "warm_start", "False") == "True"}
     return curves
 
 

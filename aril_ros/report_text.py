@@ -76,11 +76,14 @@ def comparison(payload: dict, cells: dict) -> list[str]:
               + ", ".join(f"{env} {layout_of(env).obs_dim} (v2 {PAPER_OBS_DIM[env]})" for env in envs)
               + ". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
                 "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls).",
-              "- *ARIL's adversary budget.* Each ARIL round trains its adversary for "
-              + _list(sorted({f"{c['adversary_steps']:,}" for c in payload['aril_rounds'].values()}))
-              + " steps, while the evaluation's ARIL-A against the finished learner trains for 1,000,000: the learner "
-                "is judged against a stronger adversary than any it trained on. The paper does not give its per-round "
-                "budget.",
+              "- *ARIL's adversary budget.* " + _list([
+                  f"{name}: {c['adversary_steps']:,} steps per round"
+                  + (", warm-started from the previous round's adversary" if c["warm_start"] else ", fresh each round")
+                  for name, c in payload["aril_rounds"].items()])
+              + ". The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. With "
+                "fresh adversaries each round the learner soon beats each weak f_t and stays fragile against a fresh, "
+                "stronger one; a warm-started adversary keeps up (the Ant runs predate the warm start). The paper "
+                "does not give its per-round budget.",
               "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds" if len(payload["seeds"]) > 1 else
                                     "One training seed (the quick budget): the intervals cover episode noise only, "
                                     "not seed-to-seed variation; `budget:=full` trains 3 seeds per defense."), ""]
@@ -151,8 +154,9 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
               "Clean return and return under that round's adversary f_t, per round (round 0: the expert's "
               "demonstrations); the dotted line marks the returned policy (the best under its own adversary).", "",
               f"![ARIL rounds]({figures}/aril-rounds.png)", "",
-              "| run | rounds | returned | adversary steps per round |", "|---|---|---|---|"]
-    lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {c['adversary_steps']:,} |"
+              "| run | rounds | returned | adversary steps per round | warm start |", "|---|---|---|---|---|"]
+    lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {c['adversary_steps']:,} | "
+              f"{'yes' if c['warm_start'] else 'no'} |"
               for name, c in payload["aril_rounds"].items()]
     lines += ["", "## Performance", "", *performance(payload["benchmarks"]), ""]
     lines += ["## Seeing an attack", ""]

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,8 +40,8 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
     text = out.read_text()
     figures = tmp_path / "docs" / "results"
     payload = json.loads((figures / "report.json").read_text())
-    # 5 defenses x (clean + 4 attacks + 3 sweep attacks x 2 scales)
-    assert len(payload["evaluations"]) == 5 * (5 + 3 * 2)
+    # 5 defenses x (clean + 4 attacks + 4 sweep attacks x 2 scales)
+    assert len(payload["evaluations"]) == 5 * (5 + 4 * 2)
     for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
                 "DART", "ARIL"):
         assert f"| {row} |" in text
@@ -54,7 +55,7 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
     assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
     logged.clear()
     build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-    assert any("55 evaluations: 55 cached, 0 to run" in line for line in logged)
+    assert any("65 evaluations: 65 cached, 0 to run" in line for line in logged)
     assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 
@@ -80,3 +81,30 @@ def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, m
         key, value = word.split(":=")
         if key not in ("seed", "out", "run_dir"):
             assert str(getattr(cfg, key)) == value, key
+
+
+def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch):
+    import shutil
+
+    from aril_ros import dagger, gail
+
+    def copy_bundled(algorithm):  # stands in for training: seed 1 starts as a copy of seed 0
+        def train(cfg, log):
+            name = "gail" if algorithm == "gail" else cfg.algorithm
+            Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
+            return cfg.out
+        return train
+
+    monkeypatch.setattr(dagger, "train_learner", copy_bundled("learner"))
+    monkeypatch.setattr(gail, "train_gail", copy_bundled("gail"))
+    cfg = ReportConfig(envs="Swimmer-v5", modes="physical", seeds="0,1", episodes=2, sweep_episodes=1, horizon=30,
+                       sweep_scales="2", sweep_attacks="random", adversary_steps=2048, perf=False,
+                       work_dir=str(tmp_path / "work"), out=str(tmp_path / "results.md"))
+    build_report(cfg, log=quiet)
+    payload = json.loads((tmp_path / "results" / "report.json").read_text())
+    assert {e["key"]["seed"] for e in payload["evaluations"]} == {0, 1}
+    seed1 = [e for e in payload["evaluations"] if e["key"]["seed"] == 1 and e["key"]["attack"] == "aril_a"]
+    assert len(seed1) == 5 and all("work/adversaries" in e["job"]["attack_file"] for e in seed1)
+    assert "training seeds 0, 1" in (tmp_path / "results.md").read_text()
+    assert "2 training seeds" in (tmp_path / "results.md").read_text()
