@@ -196,29 +196,30 @@ def _job_key(job: dict) -> str:
 
 
 def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
-    """Per-episode returns of each evaluation, from the cache or computed ``cfg.workers`` at a time."""
+    """Per-episode returns of each evaluation, from the cache or computed ``cfg.workers`` at a time. Equal
+    jobs (a mode-independent policy's clean run, asked for by both modes) run once."""
     cache = Path(cfg.work_dir) / "cache"
     cache.mkdir(parents=True, exist_ok=True)
-    results: list[list[float] | None] = [None] * len(jobs)
-    todo = []
-    for i, job in enumerate(jobs):
-        hit = cache / f"{_job_key(job)}.json"
+    keys = [_job_key(job) for job in jobs]
+    done: dict[str, list[float]] = {}
+    todo: dict[str, dict] = {}
+    for key, job in zip(keys, jobs):
+        hit = cache / f"{key}.json"
         if hit.exists() and not cfg.fresh:
-            results[i] = json.loads(hit.read_text())["returns"]
+            done[key] = json.loads(hit.read_text())["returns"]
         else:
-            todo.append(i)
-    log(f"[report] {len(jobs)} evaluations: {len(jobs) - len(todo)} cached, {len(todo)} to run", flush=True)
+            todo[key] = job
+    log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
     started = time.time()
     with concurrent.futures.ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(_evaluate_job, jobs[i]): i for i in todo}
+        futures = {pool.submit(_evaluate_job, job): key for key, job in todo.items()}
         for n, future in enumerate(concurrent.futures.as_completed(futures), 1):
-            i = futures[future]
-            results[i] = future.result()
-            (cache / f"{_job_key(jobs[i])}.json").write_text(json.dumps({"job": jobs[i], "returns": results[i]}))
-            job = jobs[i]
+            key = futures[future]
+            job, done[key] = todo[key], future.result()
+            (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
             log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
-                f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(results[i]):.1f}", flush=True)
-    return results
+                f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
+    return [done[key] for key in keys]
 
 
 def run_benchmarks(cfg: ReportConfig, log) -> dict:
