@@ -11,7 +11,8 @@ What it runs, in order:
    (``aril_ros/data/<defense>/``) and the bundled ARIL-A trained against it
    (``aril_ros/data/defense-adversary/``, ``adversary/`` for DAgger); other seeds are trained here by
    the bundled policy's own command (from its provenance) with ``seed:=`` changed, then an ARIL-A
-   against each, into ``<work_dir>/``. A missing or failed one makes its cells say why.
+   against each, into ``<work_dir>/``, ``workers`` trainings side by side (each on one thread; a finished
+   file is kept, so an interrupted run resumes). A missing or failed one makes its cells say why.
 3. **Evaluations**, two at a time in spawned processes: every policy clean and under random, FGSM,
    FGSM^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks at
    multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps). Each evaluation is
@@ -87,7 +88,7 @@ class ReportConfig:
     sweep_attacks: str = arg("", "attacks of the eps sweeps")
     adversary_steps: int = arg(1_000_000, "ARIL-A steps against each defense and seed that has no adversary yet")
     horizon: int = arg(1000, "steps per episode (the paper's 1000; fewer only for a smoke test)")
-    workers: int = arg(2, "evaluations run side by side")
+    workers: int = arg(2, "trainings and evaluations run side by side (one thread each)")
     perf: bool = arg(True, "run the benchmarks (the performance section)")
     bench_steps: int = arg(0, "steps per engine and adversary benchmark")
     render: bool = arg(False, "render GIFs of an attack (MuJoCo offscreen on the CPU) for render_envs")
@@ -134,54 +135,108 @@ def _relative(path: Path) -> str:
     return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
 
 
+FAILURES = (PolicyFileError, ValueError, RuntimeError, OSError)  # recorded as a missing file, not raised
+
+
+def in_processes(fn, calls: list[tuple], workers: int):
+    """``fn(*call)`` for each call, ``workers`` at a time in spawned processes (in this one for a single
+    worker); yields ``(index, result or the FAILURES exception raised)`` as each finishes."""
+    if workers == 1:
+        for index, call in enumerate(calls):
+            try:
+                yield index, fn(*call)
+            except FAILURES as err:
+                yield index, err
+        return
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(fn, *call): index for index, call in enumerate(calls)}
+        for future in concurrent.futures.as_completed(futures):
+            err = future.exception()
+            if err is not None and not isinstance(err, FAILURES):
+                raise err
+            yield futures[future], err if err is not None else future.result()
+
+
+def train_seed(cfg: ReportConfig, defense: str, env: str, mode: str, seed: int, out: Path) -> Path:
+    """Seed ``seed`` of a defense: the bundled policy's own training command with ``seed:=`` changed."""
+    from .dagger import LearnerConfig, train_learner
+    from .gail import GailConfig, train_gail
+
+    words = shlex.split(load_weights(bundled_file(defense, env, mode))[0]["provenance"]["command"])
+    kept = [w for w in words[2:] if w.split(":=")[0] not in ("seed", "out", "run_dir")]
+    print(f"[report] training {out.stem}: {' '.join(words[:2] + kept)} seed:={seed}", flush=True)
+    if defense == "gail":
+        return Path(train_gail(parse_args(GailConfig, kept + [f"seed:={seed}", f"out:={out}"]), log=print))
+    run_dir = Path(cfg.work_dir) / "learners" / out.stem
+    return Path(train_learner(parse_args(LearnerConfig, kept + [f"seed:={seed}", f"out:={out}", f"run_dir:={run_dir}"]),
+                              log=print))
+
+
+def train_seed_adversary(cfg: ReportConfig, env: str, mode: str, policy: Path, eps: float, out: Path) -> Path:
+    _ready_adversary(out, str(policy), env, mode, eps, "expert", cfg.adversary_steps, False, print)
+    return out
+
+
 class Artifacts:
     """Policy and adversary files per (defense, env, mode, seed): the bundled ones for seed 0, trained
-    into ``work_dir`` otherwise. A file that cannot be had is recorded with the reason."""
+    into ``work_dir`` otherwise, ``cfg.workers`` at a time. A file that cannot be had is recorded in
+    ``missing`` with the reason."""
 
     def __init__(self, cfg: ReportConfig, log):
         self.cfg, self.log, self.work = cfg, log, Path(cfg.work_dir)
         self.missing: dict[tuple, str] = {}
 
-    def policy(self, defense: str, env: str, mode: str, seed: int) -> Path | None:
-        key = ("policy", defense, env, mode, seed)
-        try:
+    def _prepare(self, kind: str, wanted: dict[tuple, Path | Exception], fn, calls: dict[Path, tuple]) -> dict:
+        """``wanted`` maps each combo to its file (or the error that stops it); ``calls`` makes the files
+        not there yet (one call per file: a mode-independent policy is shared by both modes)."""
+        made = {out: out for out in calls if out.exists()}
+        todo = [out for out in calls if out not in made]
+        if todo:
+            self.log(f"[report] {len(todo)} {kind} files to train, {self.cfg.workers} at a time", flush=True)
+        for index, result in in_processes(fn, [calls[out] for out in todo], self.cfg.workers):
+            made[todo[index]] = result
+        files = {}
+        for combo, file in wanted.items():
+            result = made.get(file, file)
+            if isinstance(result, Exception):
+                self.missing[(kind, *combo)] = str(result)
+                self.log(f"[report] no {kind} for {' '.join(map(str, combo))}: {result}", flush=True)
+                result = None
+            files[combo] = result
+        return files
+
+    def policies(self, combos: list[tuple]) -> dict[tuple, Path | None]:
+        """Each (defense, env, mode, seed)'s policy file, or None."""
+        wanted, calls = {}, {}
+        for defense, env, mode, seed in combos:
+            try:
+                bundled = bundled_file(defense, env, mode)
+            except FAILURES as err:
+                wanted[(defense, env, mode, seed)] = err
+                continue
             if seed == 0:
-                return bundled_file(defense, env, mode)
-            return self._train_policy(defense, env, mode, seed)
-        except (PolicyFileError, ValueError, RuntimeError, OSError) as err:
-            self.missing[key] = str(err)
-            self.log(f"[report] no {defense} policy for {env} {mode} seed {seed}: {err}", flush=True)
-            return None
+                wanted[(defense, env, mode, seed)] = bundled
+                continue
+            name = f"{defense}-{env}{f'-{mode}' if defense in ('dr', 'aril') else ''}-seed{seed}"
+            out = self.work / "policies" / f"{name}.pt"
+            wanted[(defense, env, mode, seed)] = out
+            calls.setdefault(out, (self.cfg, defense, env, mode, seed, out))
+        return self._prepare("policy", wanted, train_seed, calls)
 
-    def _train_policy(self, defense: str, env: str, mode: str, seed: int) -> Path:
-        """Seed ``seed`` of a defense: the bundled policy's own training command with ``seed:=`` changed."""
-        from .dagger import LearnerConfig, train_learner
-        from .gail import GailConfig, train_gail
-
-        name = f"{defense}-{env}{f'-{mode}' if defense in ('dr', 'aril') else ''}-seed{seed}"
-        out = self.work / "policies" / f"{name}.pt"
-        if out.exists():
-            return out
-        words = shlex.split(load_weights(bundled_file(defense, env, mode))[0]["provenance"]["command"])
-        kept = [w for w in words[2:] if w.split(":=")[0] not in ("seed", "out", "run_dir")]
-        self.log(f"[report] training {name}: {' '.join(words[:2] + kept)} seed:={seed}", flush=True)
-        if defense == "gail":
-            return train_gail(parse_args(GailConfig, kept + [f"seed:={seed}", f"out:={out}"]), log=self.log)
-        return train_learner(parse_args(LearnerConfig, kept + [f"seed:={seed}", f"out:={out}",
-                                                              f"run_dir:={self.work / 'learners' / name}"]),
-                             log=self.log)
-
-    def adversary(self, defense: str, env: str, mode: str, seed: int, policy: Path, eps: float) -> Path | None:
-        bundled = defense_adversary_path(env, mode, defense)
-        if seed == 0 and _trained_for(bundled, eps):
-            return bundled
-        path = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
-        try:
-            _ready_adversary(path, str(policy), env, mode, eps, "expert", self.cfg.adversary_steps, False, self.log)
-            return path
-        except (ValueError, RuntimeError, OSError) as err:
-            self.missing[("adversary", defense, env, mode, seed)] = str(err)
-            return None
+    def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
+        """The ARIL-A trained against each policy: the bundled one for seed 0 (when made for this eps)."""
+        wanted, calls = {}, {}
+        for (defense, env, mode, seed), policy in policies.items():
+            if policy is None:
+                continue
+            bundled = defense_adversary_path(env, mode, defense)
+            if seed == 0 and _trained_for(bundled, eps[env, mode]):
+                wanted[(defense, env, mode, seed)] = bundled
+                continue
+            out = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
+            wanted[(defense, env, mode, seed)] = out
+            calls[out] = (self.cfg, env, mode, policy, eps[env, mode], out)
+        return self._prepare("adversary", wanted, train_seed_adversary, calls)
 
 
 def _evaluate_job(job: dict) -> list[float]:
@@ -211,14 +266,15 @@ def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
             todo[key] = job
     log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
     started = time.time()
-    with concurrent.futures.ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(_evaluate_job, job): key for key, job in todo.items()}
-        for n, future in enumerate(concurrent.futures.as_completed(futures), 1):
-            key = futures[future]
-            job, done[key] = todo[key], future.result()
-            (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
-            log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
-                f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
+    todo_keys = list(todo)
+    for n, (index, returns) in enumerate(in_processes(_evaluate_job, [(todo[k],) for k in todo_keys], cfg.workers), 1):
+        if isinstance(returns, Exception):
+            raise returns
+        key = todo_keys[index]
+        job, done[key] = todo[key], returns
+        (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
+        log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
+            f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
     return [done[key] for key in keys]
 
 
@@ -414,27 +470,25 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
 
     store = Artifacts(cfg, log)
     eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
-    policies, adversaries, jobs, keys = {}, {}, [], []
-    for env in envs:
-        for mode in modes:
-            for defense in DEFENSES:
-                for seed in seeds:
-                    policy = policies.setdefault((defense, env, mode, seed), store.policy(defense, env, mode, seed))
-                    if policy is None:
-                        continue
-                    adversary = store.adversary(defense, env, mode, seed, policy, eps[env, mode])
-                    adversaries[(defense, env, mode, seed)] = adversary
-                    plan = [("none", 0.0, cfg.episodes)] + [(t, 1.0, cfg.episodes) for t in THREATS]
-                    plan += [(a, s, cfg.sweep_episodes) for a in sweep_attacks for s in scales]
-                    for attack, scale, episodes in plan:
-                        if attack == "aril_a" and adversary is None:
-                            continue
-                        jobs.append({"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
-                                     "attack": attack, "eps": round(scale * eps[env, mode], 6),
-                                     "attack_file": str(adversary) if attack == "aril_a" else "",
-                                     "rescale": attack == "aril_a", "episodes": episodes, "seed": 3000,
-                                     "horizon": cfg.horizon})
-                        keys.append((env, mode, defense, attack, scale, seed))
+    policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
+                               for defense in DEFENSES for seed in seeds])
+    adversaries = store.adversaries(policies, eps)
+    jobs, keys = [], []
+    for (defense, env, mode, seed), policy in policies.items():
+        if policy is None:
+            continue
+        adversary = adversaries[(defense, env, mode, seed)]
+        plan = [("none", 0.0, cfg.episodes)] + [(t, 1.0, cfg.episodes) for t in THREATS]
+        plan += [(a, s, cfg.sweep_episodes) for a in sweep_attacks for s in scales]
+        for attack, scale, episodes in plan:
+            if attack == "aril_a" and adversary is None:
+                continue
+            jobs.append({"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
+                         "attack": attack, "eps": round(scale * eps[env, mode], 6),
+                         "attack_file": str(adversary) if attack == "aril_a" else "",
+                         "rescale": attack == "aril_a", "episodes": episodes, "seed": 3000,
+                         "horizon": cfg.horizon})
+            keys.append((env, mode, defense, attack, scale, seed))
     returns = run_jobs(jobs, cfg, log)
     evals: dict[tuple, list[list[float]]] = {}
     for (env, mode, defense, attack, scale, seed), r in zip(keys, returns):

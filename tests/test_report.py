@@ -6,7 +6,7 @@ import pytest
 
 from aril_ros.experts import bundled_file
 from aril_ros.policy import load_weights
-from aril_ros.report import ReportConfig, build_report, summarise, t95, table_markdown
+from aril_ros.report import ReportConfig, build_report, in_processes, summarise, t95, table_markdown
 
 
 def quiet(*args, **kwargs):
@@ -72,11 +72,11 @@ def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, m
 
     seen = []
     monkeypatch.setattr(dagger, "train_learner", lambda cfg, log: seen.append(cfg) or cfg.out)
-    store = Artifacts(ReportConfig(work_dir=str(tmp_path)), quiet)
-    out = store.policy("aril", "Swimmer-v5", "physical", 2)
+    store = Artifacts(ReportConfig(work_dir=str(tmp_path), workers=1), quiet)  # in this process: training is patched
+    out = store.policies([("aril", "Swimmer-v5", "physical", 2)])[("aril", "Swimmer-v5", "physical", 2)]
     bundled = load_weights(bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]["command"]
     cfg = seen[0]
-    assert out == str(tmp_path / "policies" / "aril-Swimmer-v5-physical-seed2.pt") and cfg.seed == 2
+    assert out == tmp_path / "policies" / "aril-Swimmer-v5-physical-seed2.pt" and cfg.seed == 2
     for word in bundled.split()[2:]:
         key, value = word.split(":=")
         if key not in ("seed", "out", "run_dir"):
@@ -100,7 +100,7 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
     monkeypatch.setattr(gail, "train_gail", copy_bundled("gail"))
     cfg = ReportConfig(envs="Swimmer-v5", modes="physical", seeds="0,1", episodes=2, sweep_episodes=1, horizon=30,
                        sweep_scales="2", sweep_attacks="random", adversary_steps=2048, perf=False,
-                       work_dir=str(tmp_path / "work"), out=str(tmp_path / "results.md"))
+                       workers=1, work_dir=str(tmp_path / "work"), out=str(tmp_path / "results.md"))
     build_report(cfg, log=quiet)
     payload = json.loads((tmp_path / "results" / "report.json").read_text())
     assert {e["key"]["seed"] for e in payload["evaluations"]} == {0, 1}
@@ -108,3 +108,15 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
     assert len(seed1) == 5 and all("work/adversaries" in e["job"]["attack_file"] for e in seed1)
     assert "training seeds 0, 1" in (tmp_path / "results.md").read_text()
     assert "2 training seeds" in (tmp_path / "results.md").read_text()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_training_failures_are_recorded_and_other_errors_raised(workers):
+    import math
+    import operator
+
+
+    results = dict(in_processes(math.sqrt, [(4.0,), (-1.0,), (9.0,)], workers))
+    assert results[0] == 2.0 and results[2] == 3.0 and isinstance(results[1], ValueError)  # a missing cell, with why
+    with pytest.raises(ZeroDivisionError):  # a bug, not a missing file: stops the report
+        list(in_processes(operator.truediv, [(1, 0)], workers))
