@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .adversary import defense_adversary_path, load_adversary
+from .adversary import defense_adversary_path
 from .args import arg, command_line, parse_args
 from .attacks import calibrated_eps
 from .experiments import PAPER_ENVS_ARG, ROW_NAMES, _ready_adversary, _split, _trained_for
