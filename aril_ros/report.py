@@ -250,9 +250,10 @@ def _job_key(job: dict) -> str:
     return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
 
 
-def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
-    """Per-episode returns of each evaluation, from the cache or computed ``cfg.workers`` at a time. Equal
-    jobs (a mode-independent policy's clean run, asked for by both modes) run once."""
+def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> tuple[list[list[float]], dict]:
+    """Per-episode returns of each evaluation, from the cache or computed ``cfg.workers`` at a time, and how
+    many distinct evaluations were run and read from the cache. Equal jobs (a mode-independent policy's
+    clean run, asked for by both modes) run once."""
     cache = Path(cfg.work_dir) / "cache"
     cache.mkdir(parents=True, exist_ok=True)
     keys = [_job_key(job) for job in jobs]
@@ -264,6 +265,7 @@ def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
             done[key] = json.loads(hit.read_text())["returns"]
         else:
             todo[key] = job
+    counts = {"run": len(todo), "cached": len(done)}
     log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
     started = time.time()
     todo_keys = list(todo)
@@ -275,7 +277,7 @@ def run_jobs(jobs: list[dict], cfg: ReportConfig, log) -> list[list[float]]:
         (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
             f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
-    return [done[key] for key in keys]
+    return [done[key] for key in keys], counts
 
 
 def run_benchmarks(cfg: ReportConfig, log) -> dict:
@@ -489,7 +491,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
                          "rescale": attack == "aril_a", "episodes": episodes, "seed": 3000,
                          "horizon": cfg.horizon})
             keys.append((env, mode, defense, attack, scale, seed))
-    returns = run_jobs(jobs, cfg, log)
+    returns, counts = run_jobs(jobs, cfg, log)
     evals: dict[tuple, list[list[float]]] = {}
     for (env, mode, defense, attack, scale, seed), r in zip(keys, returns):
         evals.setdefault((env, mode, defense, attack, scale), []).append(r)
@@ -513,7 +515,8 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
                                                 out=str(figures_dir / f"attack-{env}-{mode}.gif")), log=log))
 
     files = {_relative(p): digest(p) for p in {*policies.values(), *adversaries.values()} if p is not None}
-    payload = {**stamp, "budget": cfg.budget, "seconds": round(time.time() - started, 1), "envs": envs,
+    payload = {**stamp, "budget": cfg.budget, "seconds": round(time.time() - started, 1),
+               "evaluations_run": counts, "envs": envs,
                "modes": modes, "seeds": seeds, "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"3000..{3000 + max(cfg.episodes, cfg.sweep_episodes) - 1}",
                "files": files, "missing": {" ".join(map(str, k)): v for k, v in store.missing.items()},

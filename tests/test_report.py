@@ -56,6 +56,7 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
     logged.clear()
     build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
     assert any("65 evaluations: 65 cached, 0 to run" in line for line in logged)
+    assert "distinct evaluations" not in text and "0 of 65 distinct evaluations run here" in out.read_text()
     assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 
