@@ -166,7 +166,12 @@ def train_seed(cfg: ReportConfig, defense: str, env: str, mode: str, seed: int, 
     kept = [w for w in words[2:] if w.split(":=")[0] not in ("seed", "out", "run_dir")]
     print(f"[report] training {out.stem}: {' '.join(words[:2] + kept)} seed:={seed}", flush=True)
     if defense == "gail":
-        return Path(train_gail(parse_args(GailConfig, kept + [f"seed:={seed}", f"out:={out}"]), log=print))
+        # GAIL keeps its best policy so far in its out file while it trains: train beside ``out`` so that an
+        # existing ``out`` means a finished training (an interrupted report resumes from it)
+        partial = out.with_name(f"{out.stem}.partial.pt")
+        train_gail(parse_args(GailConfig, kept + [f"seed:={seed}", f"out:={partial}"]), log=print)
+        os.replace(partial, out)
+        return out
     run_dir = Path(cfg.work_dir) / "learners" / out.stem
     return Path(train_learner(parse_args(LearnerConfig, kept + [f"seed:={seed}", f"out:={out}", f"run_dir:={run_dir}"]),
                               log=print))

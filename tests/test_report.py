@@ -89,8 +89,11 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
 
     from aril_ros import dagger, gail
 
+    written = []
+
     def copy_bundled(algorithm):  # stands in for training: seed 1 starts as a copy of seed 0
         def train(cfg, log):
+            written.append(Path(cfg.out).name)
             name = "gail" if algorithm == "gail" else cfg.algorithm
             Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
@@ -109,6 +112,11 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
     assert len(seed1) == 5 and all("work/adversaries" in e["job"]["attack_file"] for e in seed1)
     assert "training seeds 0, 1" in (tmp_path / "results.md").read_text()
     assert "2 training seeds" in (tmp_path / "results.md").read_text()
+    # GAIL writes its best policy while it trains: only a finished training takes the name a rerun skips
+    assert "gail-Swimmer-v5-seed1.partial.pt" in written
+    assert sorted(p.name for p in (tmp_path / "work" / "policies").iterdir()) == [
+        "aril-Swimmer-v5-physical-seed1.pt", "dagger-Swimmer-v5-seed1.pt", "dart-Swimmer-v5-seed1.pt",
+        "dr-Swimmer-v5-physical-seed1.pt", "gail-Swimmer-v5-seed1.pt"]
 
 
 @pytest.mark.parametrize("workers", [1, 2])
