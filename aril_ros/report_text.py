@@ -74,20 +74,29 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                 "(Swimmer 0.3) makes every defense's worst case harsher.",
               "- *Env versions.* v5 on MuJoCo 3 against v2 on mujoco-py; observation sizes "
               + ", ".join(f"{env} {layout_of(env).obs_dim} (v2 {PAPER_OBS_DIM[env]})" for env in envs)
-              + ". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
-                "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls).",
+              + (". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
+                 "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls)."
+                 if "Ant-v5" in envs else "."),
               "- *ARIL's adversary budget.* " + _list([
                   f"{name}: {c['adversary_steps']:,} steps per round"
                   + (", warm-started from the previous round's adversary" if c["warm_start"] else ", fresh each round")
                   for name, c in payload["aril_rounds"].items()])
               + ". The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. With "
                 "fresh adversaries each round the learner soon beats each weak f_t and stays fragile against a fresh, "
-                "stronger one; a warm-started adversary keeps up (the Ant runs predate the warm start). The paper "
-                "does not give its per-round budget.",
-              "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds" if len(payload["seeds"]) > 1 else
+                "stronger one; a warm-started adversary keeps up" + _fresh_runs(payload["aril_rounds"])
+              + ". The paper does not give its per-round budget.",
+              "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds per defense: the intervals are over the "
+                                    "seeds' means (Student-t), so they bound seed-to-seed variation and are wide with "
+                                    "this few seeds; each seed's episodes are in the JSON."
+                                    if len(payload["seeds"]) > 1 else
                                     "One training seed (the quick budget): the intervals cover episode noise only, "
                                     "not seed-to-seed variation; `budget:=full` trains 3 seeds per defense."), ""]
     return lines
+
+
+def _fresh_runs(curves: dict) -> str:
+    fresh = [name for name, curve in curves.items() if not curve["warm_start"]]
+    return f" ({_list(fresh)}: fresh adversaries each round)" if fresh else ""
 
 
 def performance(benchmarks: dict) -> list[str]:

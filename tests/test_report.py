@@ -46,6 +46,7 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
                 "DART", "ARIL"):
         assert f"| {row} |" in text
     assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
+    assert "Ant's contact-force" not in text and "fresh adversaries each round)" not in text  # Swimmer's is warm
     assert (figures / "sweep-Swimmer-v5-physical.png").stat().st_size > 10_000
     assert (figures / "aril-rounds.png").exists() and "results/aril-rounds.png" in text
     # every table figure is the mean of the episodes recorded in the JSON
