@@ -1,0 +1,43 @@
+"""What every trained file and table records about how it was made.
+
+A provenance record holds the command that reproduces the file (for a person to read and rerun) and
+the same settings as JSON (``settings``, for a program to read back: :func:`settings_of`), the git
+revision and the time; trainings add their own figures beside these.
+"""
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import subprocess
+from pathlib import Path
+
+from .args import command_line
+
+
+def git_revision() -> str:
+    """The short revision of the checkout this package runs from, or ``unknown`` (an installed copy)."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=Path(__file__).resolve().parent,
+                             capture_output=True, text=True, timeout=5)
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def stamp(prog: str, cfg) -> dict:
+    """``command``, ``settings``, ``git_revision`` and ``created`` for a run of ``prog`` with ``cfg``."""
+    return {"command": command_line(prog, cfg), "settings": dataclasses.asdict(cfg), "git_revision": git_revision(),
+            "created": now()}
+
+
+def settings_of(provenance: dict, cls, **changes):
+    """The ``cls`` arguments a file was made with (its provenance's ``settings``), with ``changes``;
+    settings added to ``cls`` since the file was made take their defaults."""
+    if "settings" not in provenance:
+        raise ValueError(f"the file records no settings (made by {provenance.get('command', 'an unknown command')!r})")
+    known = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: v for k, v in provenance["settings"].items() if k in known} | changes)

@@ -1,0 +1,118 @@
+"""The vocabulary of the testbed and where its bundled files live: every name is defined here once.
+
+Modes, attacks, defenses and the paper's envs are named here; every other module, the ROS nodes
+included, takes them from here. Bundled files are package data, found from the installed package
+(never from a checkout's folders)::
+
+    aril_ros/data/<policy>/<env>.pt                     expert, bc, dagger, dart, gail
+    aril_ros/data/<policy>/<env>-<mode>.pt              dr, aril (trained against one attack mode)
+    aril_ros/data/adversary/<env>-<mode>.pt             ARIL-A against the bundled DAgger learner
+    aril_ros/data/defense-adversary/<env>-<mode>-<defense>.pt   ARIL-A against each other defense
+    aril_ros/data/eps_calibration.json                  the eps per env and mode (aril calibrate-eps)
+
+This module imports neither torch nor MuJoCo.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+CALIBRATION = DATA_DIR / "eps_calibration.json"
+
+PAPER_ENVS = ("HalfCheetah-v5", "Ant-v5", "Swimmer-v5")
+DEFAULT_ENV = PAPER_ENVS[0]
+
+MODES = ("clean", "sensory", "physical")
+ATTACKED_MODES = ("sensory", "physical")
+
+ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "aril_a": "ARIL-A"}
+"""Every attack by name, with the name tables print."""
+WHITE_BOX = ("fgsm", "fgsm_k")
+"""Attacks that need the victim's weights (gradients)."""
+THREATS = ("random", "fgsm", "fgsm_k", "aril_a")
+"""The attacks a defense is judged under: its worst one is its figure in the defense tables."""
+
+DEFENSES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL", "bc": "BC"}
+"""The bundled learners, in the paper's row order, with the names tables print."""
+PAPER_DEFENSES = ("dagger", "gail", "dr", "dart", "aril")
+"""The rows of the paper's Robust IL tables."""
+BUNDLED_POLICIES = ("expert", *DEFENSES)
+PER_MODE_POLICIES = ("dr", "aril")
+"""Trained against one attack mode: one bundled file per env and mode."""
+DEFAULT_POLICY = "dagger"
+"""``bundled``: the paper's learner under attack."""
+BUNDLED_NAMES = (*BUNDLED_POLICIES, "bundled")
+
+
+class BundledFileError(ValueError):
+    """A bundled name that has no file for this env (and mode)."""
+
+
+def check_name(kind: str, name: str, names) -> str:
+    """``name`` if it is one of ``names``, else a ValueError listing them."""
+    if name not in names:
+        raise ValueError(f"unknown {kind} {name!r}; choose one of {', '.join(names)}")
+    return name
+
+
+def bundled_path(policy: str, env_id: str, mode: str | None = None) -> Path:
+    """Where a bundled policy lives (whether or not it exists); ``dr`` and ``aril`` have one per mode."""
+    policy = DEFAULT_POLICY if policy == "bundled" else check_name("bundled policy", policy, BUNDLED_NAMES)
+    if policy not in PER_MODE_POLICIES:
+        return DATA_DIR / policy / f"{env_id}.pt"
+    if mode not in ATTACKED_MODES:
+        raise BundledFileError(f"the bundled {policy} policies are trained per attack mode: it takes mode sensory or "
+                               f"physical (got {mode}); for another mode pass the file, e.g. "
+                               f"{DATA_DIR / policy}/{env_id}-sensory.pt")
+    return DATA_DIR / policy / f"{env_id}-{mode}.pt"
+
+
+def bundled_file(policy: str, env_id: str, mode: str | None = None) -> Path:
+    """The file of a bundled policy, with the bundled ones listed when it is missing."""
+    path = bundled_path(policy, env_id, mode)
+    if not path.is_file():
+        kind = path.parent.name
+        raise BundledFileError(f"no bundled {kind} for {env_id}{f' ({mode})' if kind in PER_MODE_POLICIES else ''} "
+                               f"(looked for {path}); bundled: "
+                               + (", ".join(sorted(p.stem for p in path.parent.glob("*.pt"))) or "none"))
+    return path
+
+
+def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Path:
+    """Where the bundled ARIL-A trained against the bundled learner ``defense`` lives (whether or not
+    it exists): the one against DAgger is ``attack:=aril_a``'s default."""
+    if defense == DEFAULT_POLICY:
+        return DATA_DIR / "adversary" / f"{env_id}-{mode}.pt"
+    return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
+
+
+def calibrated_eps(env_id: str, mode: str, calibration: str | Path = CALIBRATION) -> float:
+    """The eps chosen for ``env_id`` and ``mode`` by ``aril calibrate-eps`` (the paper's 40% FGSM rule)."""
+    path = Path(calibration)
+    if not path.is_file():
+        raise ValueError(f"no eps calibration at {path}: run aril calibrate-eps, or pass eps:=")
+    for row in json.loads(path.read_text())["rows"]:
+        if (row["env"], row["mode"]) == (env_id, mode):
+            return float(row["chosen_eps"])
+    raise ValueError(f"{path} has no eps for {env_id} {mode}: run aril calibrate-eps envs:={env_id} modes:={mode}, "
+                     "or pass eps:=")
+
+
+def attack_for_mode(mode: str, attack: str = "") -> str:
+    """The attack a mode runs: ``attack``, or when unset none (clean) or random; clean runs no other."""
+    check_name("mode", mode, MODES)
+    name = check_name("attack", attack or ("none" if mode == "clean" else "random"), ATTACKS)
+    if mode == "clean" and name != "none":
+        raise ValueError(f"mode:=clean runs no attack, got attack:={name}")
+    return name
+
+
+def attack_budget(env_id: str, mode: str, attack: str, eps: float) -> float:
+    """The eps an attack runs with: ``eps`` when given; unset (0), the calibrated one for the env and
+    mode, except for aril_a, whose adversary file carries its own (0 here lets it decide)."""
+    if attack == "none":
+        return 0.0
+    if eps or attack == "aril_a":
+        return eps
+    return calibrated_eps(env_id, mode)

@@ -1,0 +1,54 @@
+"""Which env seeds each use takes, so that no training ever runs on an evaluation's episodes.
+
+Episode ``i`` of a run with first seed ``s`` resets its env with ``s + i`` (and draws its attack
+noise from ``np.random.default_rng([s, i])``). The evaluation ranges below (1000 episodes each) never
+overlap one another, and every training collects at or above ``TRAINING``, so no evaluation shares an
+episode with a training: training seed ``k`` owns a block of ``SEED_BLOCK`` env seeds, in which
+``train-learner``'s rounds (BC's demonstrations are its round 0) and ``train-adversary`` take disjoint
+slices. A user's own ``aril eval`` / ``run_graph.py`` runs start at ``USER`` (0) unless told otherwise.
+
+Files trained before this scheme (the bundled policies' provenance says which command made them)
+took their collection seeds from ``seed*100000 + round*1000`` and BC's from ``seed*1000``.
+"""
+from __future__ import annotations
+
+USER = 0
+"""``aril eval`` and ``run_graph.py``: episodes 0, 1, ... unless ``seed:=`` says otherwise."""
+CALIBRATION = 1_000
+"""``aril calibrate-eps``: 1000..1999."""
+ATTACK_TABLE = 2_000
+"""``aril attack-table``: 2000..2999."""
+DEFENSE_TABLE = 3_000
+"""``aril defense-table`` and ``aril report`` (every table cell and sweep point): 3000..3999."""
+SELECTION = 10_000
+"""Keeping the best during training (experts, GAIL, BC's check): 10000..10999."""
+GAIL_DEMOS = 20_000
+"""GAIL's clean expert demonstrations: 20000..20999."""
+LEARNER_EVAL = 500_000
+"""train-learner's clean evaluation of each round's learner (dr, aril): 500000..500999."""
+
+TRAINING = 1_000_000
+"""Everything a training collects lies at or above this."""
+SEED_BLOCK = 1_000_000
+"""Env seeds per training seed: training seed ``k`` collects in ``[TRAINING + k*SEED_BLOCK, + SEED_BLOCK)``."""
+ROUND_BLOCK = 10_000
+"""Env seeds per round of ``train-learner`` inside a training seed's block (round ``r``: slice ``r``)."""
+ADVERSARY_SLICE = 500_000
+"""Offset inside a training seed's block where ``train-adversary`` draws its episodes (after the rounds)."""
+
+
+def training_block(seed: int) -> int:
+    """The first env seed of training seed ``seed``'s block."""
+    if seed < 0:
+        raise ValueError(f"training seeds are >= 0, got {seed}")
+    return TRAINING + seed * SEED_BLOCK
+
+
+def collection(seed: int, round_: int) -> int:
+    """First env seed of round ``round_`` of ``train-learner`` (BC's demonstrations: round 0)."""
+    return training_block(seed) + round_ * ROUND_BLOCK
+
+
+def adversary_training(seed: int) -> int:
+    """First env seed of ``train-adversary`` with ``seed:=seed`` (it resets one env per new episode)."""
+    return training_block(seed) + ADVERSARY_SLICE

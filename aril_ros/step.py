@@ -1,0 +1,135 @@
+"""One control step, as the paper defines it (eqs. 5 and 6): the only place its rules are written.
+
+The in-process engine (:mod:`aril_ros.rollout`), the ROS nodes (simulator, attacker, recorder), the
+adversary trainer and the log reader all call these, so the graph and the engine cannot drift apart.
+
+A step of an episode, given the true observation ``s`` and a perturbation ``delta`` of its
+zero-order entries (``|delta| <= eps``):
+
+- ``clean``: the policy sees ``s``; no attack (``delta = 0``).
+- ``sensory``: the policy sees ``s + delta`` (:func:`sensory_observation`); the simulator is untouched.
+- ``physical``: the simulator's zero-order state is moved by ``delta`` before the policy acts
+  (:func:`physical_state` writes it into the full MuJoCo state), so the policy sees the observation
+  of the moved state and the dynamics continue from it.
+
+In every mode the expert labels ``s``, the true state before the attack, and the step's loss is the
+disagreement ``||a - pi_e(s)||^2`` (:func:`disagreement`). Episode ``e`` of a run with ``seed``
+resets its env with ``seed + e`` and draws its attack noise from :func:`episode_rng`, so its
+trajectory does not depend on what runs beside it. A step is complete when every step topic has
+arrived (:func:`missing_topics`). This module imports neither torch, MuJoCo nor rclpy.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import protocol as P
+
+# mjSTATE_INTEGRATION vectors start with time, then qpos (MuJoCo orders components by mjtState bit).
+STATE_QPOS_START = 1
+
+
+def episode_rng(seed: int, episode: int) -> np.random.Generator:
+    """The attack noise of episode ``episode`` of a run with ``seed``, drawn from its step 0 on."""
+    return np.random.default_rng([seed, episode])
+
+
+def episode_seed(seed: int, episode: int) -> int:
+    """The env seed episode ``episode`` of a run with ``seed`` resets with."""
+    return seed + episode
+
+
+def sensory_observation(true_obs: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """What the policy sees under a sensory attack (and clean, with ``delta = 0``)."""
+    return true_obs + delta
+
+
+def physical_state(layout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """A physical attack: the ``mjSTATE_INTEGRATION`` vector ``state`` with ``delta[position]`` added to
+    ``qpos[qpos_offset:]`` (the observation's zero-order entries).
+
+    A free joint's quaternion is left unnormalised: MuJoCo normalises it wherever it is used, so the
+    bound ``|delta| <= eps`` holds exactly on what is written.
+    """
+    new = np.array(state, dtype=np.float64)
+    start = STATE_QPOS_START + layout.qpos_offset
+    new[start : start + layout.n_position] += delta[layout.position]
+    return new
+
+
+def disagreement(action: np.ndarray, expert_action: np.ndarray) -> np.ndarray:
+    """``||a - a_e||^2`` per row: the step's loss, which ARIL-A maximises and DAgger's learner minimises."""
+    return ((np.asarray(action) - np.asarray(expert_action)) ** 2).sum(axis=-1)
+
+
+@dataclass
+class EpisodeStats:
+    """One episode's figures, accumulated step by step: return, disagreement, length, largest |delta|."""
+
+    episode: int = 0
+    reward: float = 0.0
+    squared_loss: float = 0.0
+    steps: int = 0
+    max_delta: float = 0.0
+    done: bool = False
+
+    def add(self, reward: float, action: np.ndarray, expert_action: np.ndarray, delta: np.ndarray,
+            done: bool = False) -> None:
+        self.reward += float(reward)
+        self.squared_loss += float(disagreement(action, expert_action))
+        self.max_delta = max(self.max_delta, float(np.abs(delta).max(initial=0.0)))
+        self.steps += 1
+        self.done = bool(done)
+
+    @property
+    def expert_loss(self) -> float:
+        """The mean over its steps of ``||a - a_e||^2``."""
+        return self.squared_loss / max(self.steps, 1)
+
+    def line(self) -> str:
+        """How a run prints a finished episode."""
+        return (f"episode {self.episode:3d}  return {self.reward:9.1f}  expert loss {self.expert_loss:.4f}  "
+                f"steps {self.steps:4d}  max|delta| {self.max_delta:.4f}")
+
+
+def summarise_episodes(episodes: list[EpisodeStats]) -> dict:
+    """The figures a run reports for its episodes (``aril eval`` and ``run_graph.py`` alike)."""
+    returns = np.array([e.reward for e in episodes])
+    steps = sum(e.steps for e in episodes)
+    return {"episodes": len(episodes), "mean_return": round(float(returns.mean()), 3),
+            "std_return": round(float(returns.std()), 3),
+            "mean_expert_loss": round(sum(e.squared_loss for e in episodes) / steps, 6),
+            "max_abs_delta": round(max(e.max_delta for e in episodes), 6), "steps": int(steps),
+            "returns": [round(float(r), 3) for r in returns]}
+
+
+def episode_stats(episode: np.ndarray, reward: np.ndarray, action: np.ndarray, expert_action: np.ndarray,
+                  delta: np.ndarray) -> list[EpisodeStats]:
+    """Per-episode figures of steps given as rows (a run log's), in order of first appearance."""
+    stats: dict[int, EpisodeStats] = {}
+    for row, e in enumerate(np.asarray(episode)):
+        stats.setdefault(int(e), EpisodeStats(int(e))).add(reward[row], action[row], expert_action[row], delta[row])
+    return list(stats.values())
+
+
+def missing_topics(have) -> list[str]:
+    """The step topics a step still lacks (``have``: the topics it has); empty when it is complete."""
+    return [t for t in P.STEP_TOPICS if t not in have]
+
+
+@dataclass
+class StepArrays:
+    """What every step records, whether run in-process or read back from a graph's log."""
+
+    true_obs: np.ndarray
+    """the true observation, which the expert labels"""
+    obs: np.ndarray
+    """the observation the policy saw"""
+    delta: np.ndarray
+    """the attack's perturbation (observation coordinates)"""
+    action: np.ndarray
+    """the policy's action"""
+    expert_action: np.ndarray
+    """the expert's action on the true observation"""
+    reward: np.ndarray
