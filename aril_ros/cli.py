@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import plugins
 from .adversary import AdversaryConfig, train_adversary
 from .args import ArgumentError, arg, parse_args, usage
 from .dagger import LearnerConfig, train_learner
@@ -56,69 +58,61 @@ def run_recover(cfg: RecoverConfig) -> int:
     return steps
 
 
-def run_train_adversary(cfg: AdversaryConfig):
-    if cfg.victim != "ros":
-        return train_adversary(cfg)
-    from nodes.remote_policy import RemotePolicy  # a black-box victim over ROS
+@dataclass
+class Command:
+    """A subcommand of ``aril``: its arguments dataclass, what runs it, and one line for the listing.
+    Other packages add commands through the ``aril_ros.commands`` entry points (see :mod:`aril_ros.plugins`)."""
 
-    victim = RemotePolicy(cfg.env)
-    try:
-        return train_adversary(cfg, victim=victim)
-    finally:
-        victim.close()
-
-
-def run_replay(cfg) -> int:
-    from nodes.replay import replay  # the only subcommand that needs ROS
-
-    return replay(cfg)
-
-
-def _replay_config():
-    from nodes.replay import ReplayConfig
-
-    return ReplayConfig
+    config: type
+    run: Callable
+    summary: str
 
 
 COMMANDS = {
-    "eval": (EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
-    "train-expert": (ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
-    "train-bc": (BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
-    "train-learner": (LearnerConfig, train_learner,
-                      "Imitate by rounds: algorithm:=dagger, dart, dr (domain randomisation) or aril (Algorithm 1)."),
-    "train-gail": (GailConfig, train_gail, "GAIL: a discriminator's reward for stable-baselines3 PPO (no expert labels)."),
-    "train-adversary": (AdversaryConfig, run_train_adversary,
-                        "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
-    "calibrate-eps": (CalibrationConfig, calibrate_eps,
-                      "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%); writes results/."),
-    "attack-table": (AttackTableConfig, attack_table,
-                     "The paper's Adversary rows (clean, random, FGSM, FGSM^k, ARIL-A); writes results/."),
-    "defense-table": (DefenseTableConfig, defense_table,
-                      "The paper's Robust IL rows: each defense under the strongest attack against it; writes results/."),
-    "report": (ReportConfig, build_report,
-               "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
-    "render": (RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
-    "replay": (_replay_config, run_replay, "Republish a run log's topics paced by sim time (like ros2 bag play)."),
-    "log-recover": (RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
+    "eval": Command(EvalConfig, run_eval, "Evaluate a policy under a mode, attack and eps, labelled by the expert."),
+    "train-expert": Command(ExpertConfig, train_expert, "Train an expert with stable-baselines3 SAC and export it."),
+    "train-bc": Command(BCConfig, train_bc, "Behaviour-clone a learner from clean expert demonstrations."),
+    "train-learner": Command(LearnerConfig, train_learner, "Imitate by rounds: algorithm:=dagger, dart, dr (domain "
+                             "randomisation) or aril (Algorithm 1)."),
+    "train-gail": Command(GailConfig, train_gail,
+                          "GAIL: a discriminator's reward for stable-baselines3 PPO (no expert labels)."),
+    "train-adversary": Command(AdversaryConfig, train_adversary,
+                               "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
+    "calibrate-eps": Command(CalibrationConfig, calibrate_eps,
+                             "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%)."),
+    "attack-table": Command(AttackTableConfig, attack_table,
+                            "The paper's Adversary rows (clean, random, FGSM, FGSM^k, ARIL-A); writes results/."),
+    "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
+                             "strongest attack against it; writes results/."),
+    "report": Command(ReportConfig, build_report,
+                      "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
+    "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
+    "log-recover": Command(RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
 }
+
+
+def command(name: str) -> Command | None:
+    """A library command, or one an installed package registers (e.g. ``replay`` from the ROS side)."""
+    if name in COMMANDS:
+        return COMMANDS[name]
+    return plugins.load("aril_ros.commands", name) if name in plugins.names("aril_ros.commands") else None
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] in ("-h", "--help") or argv[0] not in COMMANDS:
+    chosen = command(argv[0]) if argv else None
+    if chosen is None:
         print("usage: aril <command> [key:=value ...] [--help]\n\ncommands:")
-        for name, (_, _, summary) in COMMANDS.items():
-            print(f"  {name:<14} {summary}")
+        for name in [*COMMANDS, *plugins.names("aril_ros.commands")]:
+            print(f"  {name:<14} {command(name).summary}")
         return 0 if not argv or argv[0] in ("-h", "--help") else 2
     if argv[0] == "report":  # the issue's spelling: aril report --quick / --full
         argv = [f"budget:={a[2:]}" if a in ("--quick", "--full") else a for a in argv]
-    cls, run, summary = COMMANDS[argv[0]]
-    cls = cls if isinstance(cls, type) else cls()
     if "-h" in argv[1:] or "--help" in argv[1:]:
-        print(usage(cls, f"aril {argv[0]}", summary))
+        print(usage(chosen.config, f"aril {argv[0]}", chosen.summary))
         return 0
     try:
-        run(parse_args(cls, argv[1:]))
+        chosen.run(parse_args(chosen.config, argv[1:]))
     except (ArgumentError, EnvLayoutError, PolicyFileError, RunLogError, ValueError, OSError,
             RenderError) as err:
         print(f"aril {argv[0]}: error: {err}", file=sys.stderr)

@@ -78,6 +78,28 @@ class LearnerConfig:
                                    "the same seeds give the same data set")
 
 
+@dataclass
+class RoundSpec:
+    """One round's collection, as a collector other than the engine receives it (``source:=graph``:
+    the ROS side's ``aril_ros.collectors`` entry point runs it through the nodes and records it)."""
+
+    env: str
+    mode: str
+    """clean, sensory or physical"""
+    attack: str
+    eps: float
+    policy: str
+    """the collecting policy: a bundled name or a policy file"""
+    expert: str
+    attack_file: str
+    """aril_a: the round's adversary file, else empty"""
+    episodes: int
+    seed: int
+    """env seed of the first episode (and of the attack noise)"""
+    record: Path
+    """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.mcap_log`)"""
+
+
 class NoisyPolicy:
     """DART's collector: ``policy``'s action plus Gaussian noise ``N(0, cov)``, clipped to the action bounds."""
 
