@@ -11,12 +11,13 @@ episode's perturbations do not depend on how many episodes run side by side.
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
+import torch
 
+from .adversary_net import AdversaryNet, load_adversary
 from .envs import ObsLayout
+from .policy import in_blocks
+from .registry import ATTACKS, WHITE_BOX, adversary_path, check_name
 
 
 class Attack:
@@ -106,64 +107,58 @@ class FGSMk(FGSM):
         super().__init__(layout, eps, victim, expert, steps)
 
 
-ATTACKS: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk)}
-ATTACK_NAMES = (*ATTACKS, "aril_a")
-WHITE_BOX = ("fgsm", "fgsm_k")
+class LearnedAttack(Attack):
+    """ARIL-A at evaluation: ``delta ~ N(f(s), std)`` clipped to ±eps, drawn from the episode's rng
+    (``stochastic``, as the paper samples it), or the mean ``f(s)``. With ``eps`` other than the one it
+    was trained with, the whole perturbation is scaled by ``eps / trained eps`` (eps sweeps: the same
+    learned direction, a different budget)."""
+
+    name = "aril_a"
+
+    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True, eps: float | None = None):
+        super().__init__(layout, net.eps if eps is None else eps)
+        self.net, self.stochastic = net, stochastic
+        self.scale = self.eps / net.eps
+        self.std = net.log_std.detach().exp().double().numpy()
+
+    @torch.inference_mode()
+    def propose(self, true_obs, rngs):
+        blocks, n = in_blocks(true_obs)  # batch-invariant, like the policies
+        mean = torch.cat([self.net.mean(b) for b in blocks])[:n].double().numpy()
+        delta = np.zeros_like(true_obs)
+        delta[:, : self.layout.n_position] = mean
+        if self.stochastic:
+            for row, rng in enumerate(rngs):
+                delta[row, : self.layout.n_position] += self.std * rng.standard_normal(len(self.std))
+        return delta * self.scale
 
 
-def attack_for_mode(mode: str, attack: str = "") -> str:
-    """The attack a mode runs: ``attack``, or when unset none (clean) or random; clean runs no other."""
-    name = attack or ("none" if mode == "clean" else "random")
-    if mode == "clean" and name != "none":
-        raise ValueError(f"mode:=clean runs no attack, got attack:={name}")
-    return name
-
-
-CALIBRATION = Path(__file__).resolve().parents[1] / "results" / "eps_calibration.json"
-
-
-def calibrated_eps(env_id: str, mode: str, calibration: str | Path = CALIBRATION) -> float:
-    """The eps chosen for ``env_id`` and ``mode`` by ``aril calibrate-eps`` (the paper's 40% FGSM rule)."""
-    path = Path(calibration)
-    if not path.is_file():
-        raise ValueError(f"no eps calibration at {path}: run aril calibrate-eps, or pass eps:=")
-    for row in json.loads(path.read_text())["rows"]:
-        if (row["env"], row["mode"]) == (env_id, mode):
-            return float(row["chosen_eps"])
-    raise ValueError(f"{path} has no eps for {env_id} {mode}: run aril calibrate-eps envs:={env_id} modes:={mode}, "
-                     "or pass eps:=")
-
-
-def attack_budget(env_id: str, mode: str, attack: str, eps: float) -> float:
-    """The eps an attack runs with: ``eps`` when given; unset (0), the calibrated one for the env and
-    mode, except for aril_a, whose adversary file carries its own (0 here lets it decide)."""
-    if attack == "none":
-        return 0.0
-    if eps or attack == "aril_a":
-        return eps
-    return calibrated_eps(env_id, mode)
+CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk)}
 
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None, rescale: bool = False) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a
-    needs an adversary file (its eps is the one it was trained with, unless ``rescale`` scales it to ``eps``)."""
-    if name not in ATTACK_NAMES:
-        raise ValueError(f"unknown attack {name!r}; choose one of {', '.join(ATTACK_NAMES)}")
+    needs an adversary file (default: the bundled one against the bundled learner; its eps is the one
+    it was trained with, unless ``rescale`` scales it to ``eps``)."""
+    check_name("attack", name, ATTACKS)
     if name == "aril_a":
-        from .adversary import LearnedAttack, bundled_adversary_path, load_adversary  # it builds on this module
-
-        if not adversary:
-            bundled = bundled_adversary_path(layout.env_id, mode or "sensory")
-            if not bundled.exists():
-                raise ValueError(f"attack aril_a needs an adversary file: no bundled one for {layout.env_id} "
-                                 f"{mode} (looked for {bundled}); pass attack_file:= (from aril train-adversary)")
-            adversary = str(bundled)
-        net = load_adversary(adversary, layout.env_id, mode)
-        if eps and abs(eps - net.eps) > 1e-12 and not rescale:
-            raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps} (rescale:=true scales it)")
-        return LearnedAttack(layout, net, eps=eps if eps and rescale else None)
+        return _learned_attack(layout, eps, adversary, mode, rescale)
     if name in WHITE_BOX:
         kwargs = {} if steps is None else {"steps": steps}
-        return ATTACKS[name](layout, eps, victim, expert, **kwargs)
-    return ATTACKS[name](layout, eps)
+        return CLASSES[name](layout, eps, victim, expert, **kwargs)
+    return CLASSES[name](layout, eps)
+
+
+def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: str | None,
+                    rescale: bool) -> LearnedAttack:
+    if not adversary:
+        bundled = adversary_path(layout.env_id, mode or "sensory")
+        if not bundled.exists():
+            raise ValueError(f"attack aril_a needs an adversary file: no bundled one for {layout.env_id} "
+                             f"{mode} (looked for {bundled}); pass attack_file:= (from aril train-adversary)")
+        adversary = str(bundled)
+    net = load_adversary(adversary, layout.env_id, mode)
+    if eps and abs(eps - net.eps) > 1e-12 and not rescale:
+        raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps} (rescale:=true scales it)")
+    return LearnedAttack(layout, net, eps=eps if eps and rescale else None)

@@ -31,11 +31,7 @@ from .report import ReportConfig, build_report
 
 
 def run_eval(cfg: EvalConfig) -> dict:
-    def progress(k, ret, loss, length, max_delta):
-        print(f"episode {k:3d}  return {ret:9.1f}  expert loss {loss:.4f}  steps {length:4d}  "
-              f"max|delta| {max_delta:.4f}", file=sys.stderr, flush=True)
-
-    summary = evaluate(cfg, progress)
+    summary = evaluate(cfg, lambda episode: print(episode.line(), file=sys.stderr, flush=True))
     print(f"{cfg.env} {cfg.mode}/{summary['attack']} eps={summary['eps']}: return "
           f"{summary['mean_return']:.1f} ± {summary['std_return']:.1f} over {cfg.episodes} episodes, "
           f"mean expert loss {summary['mean_expert_loss']:.4f}, {summary['steps_per_s']:.0f} steps/s")

@@ -6,9 +6,9 @@ then optionally more (Ant-v5 appends contact forces). :func:`layout_of` finds ``
 states and comparing ``_get_obs()`` with ``qpos``/``qvel``, so any such id works, and refuses ids whose
 observation does not start that way (Reacher, InvertedDoublePendulum) or that are not MuJoCo envs.
 
-This module is the only place that knows raw ``qpos`` indices: the attacks and the rollout engine
-speak in observation coordinates, and :meth:`MujocoSim.perturb` maps a perturbation of the
-zero-order observation back onto ``qpos`` for the physical attack.
+This module and the step rules (:func:`aril_ros.step.physical_state`, which writes a physical
+perturbation into a full state through :class:`ObsLayout`) are the only places that know raw ``qpos``
+indices: the attacks and the rollout engine speak in observation coordinates.
 """
 from __future__ import annotations
 
@@ -21,7 +21,9 @@ import mujoco
 import numpy as np
 from gymnasium.envs.mujoco import MujocoEnv
 
-PAPER_ENVS = ("HalfCheetah-v5", "Ant-v5", "Swimmer-v5")
+from .registry import PAPER_ENVS
+from .step import physical_state
+
 HORIZON = 1000  # the paper's episode length for every env
 
 POSITION, VELOCITY, OTHER = "position", "velocity", "other"
@@ -115,9 +117,6 @@ def _entry_names(model: mujoco.MjModel, address_of: str, width_of: dict[int, int
     return names
 
 
-# mjSTATE_INTEGRATION vectors start with time, then qpos (MuJoCo orders components by mjtState bit).
-STATE_QPOS_START = 1
-
 _QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # free, ball, slide, hinge
 _QVEL_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 
@@ -172,18 +171,6 @@ def layout_of(env_id: str) -> ObsLayout:
         )
     finally:
         env.close()
-
-
-def perturbed_state(layout: ObsLayout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """An ``mjSTATE_INTEGRATION`` vector with ``delta[position]`` added to its qpos part.
-
-    What a physical attacker sends to the simulator's set-state service: it gives bit-for-bit the
-    qpos that :meth:`MujocoSim.perturb` writes, so the graph follows the in-process engine exactly.
-    """
-    new = np.array(state, dtype=np.float64)
-    start = STATE_QPOS_START + layout.qpos_offset
-    new[start : start + layout.n_position] += delta[layout.position]
-    return new
 
 
 class MujocoSim:
@@ -251,15 +238,10 @@ class MujocoSim:
         return names + [f"state[{i}]" for i in range(len(names), self._state_size)]
 
     def perturb(self, delta: np.ndarray) -> np.ndarray:
-        """Physical attack: move the real zero-order state by ``delta`` (observation coordinates).
-
-        Only ``delta[position]`` is used; it lands on ``qpos[qpos_offset:]``. A free joint's
-        quaternion is left unnormalised: MuJoCo normalises it wherever it is used, so the bound
-        ``|delta| <= eps`` holds exactly on what is written. Returns the new observation.
-        """
-        layout = self.layout
-        self.data.qpos[layout.qpos_offset :] += delta[layout.position]
-        mujoco.mj_forward(self.model, self.data)
+        """Physical attack: move the real zero-order state by ``delta`` (observation coordinates), by the
+        one rule the simulator node applies too (:func:`aril_ros.step.physical_state`). Returns the new
+        observation."""
+        self.set_state(physical_state(self.layout, self.get_state(), delta))
         return self.observe()
 
     def close(self) -> None:

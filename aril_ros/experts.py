@@ -8,14 +8,11 @@ the action bounds, or PPO's clipped mean with the normaliser's statistics, is ex
 :class:`MLPPolicy` computes, so the exported file needs neither SB3 nor the training code. During training the exported actor is
 evaluated on the rollout engine every ``eval_every`` steps and the best one is kept.
 
-Bundled files live in ``aril_ros/data/<kind>/<env_id>.pt``; a policy argument that is a bundled
-name (``expert``) resolves there.
+Bundled experts live where :func:`aril_ros.registry.bundled_path` says (``aril_ros/data/expert/``).
 """
 from __future__ import annotations
 
-import datetime
 import json
-import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,15 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .args import arg, command_line
+from . import seeds
+from .args import arg
 from .envs import layout_of, make_gym_env
-from .policy import MLPPolicy, PolicyFileError, load_policy, meta_for_env, save_policy
-
-DATA_DIR = Path(__file__).resolve().parent / "data"
-BUNDLED_KINDS = ("expert", "bc", "dagger", "dart", "gail", "dr", "aril", "bundled")
-MODE_KINDS = ("dr", "aril")  # trained against one attack mode: one bundled file per env and mode
-# "bundled" is the default bundled policy: the DAgger learner, the paper's learner under attack
-BUNDLED_DEFAULT = "dagger"
+from .policy import MLPPolicy, meta_for_env, save_policy
+from .provenance import stamp
+from .registry import DEFAULT_ENV, bundled_path
 
 # rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
 HYPERPARAMETERS = {
@@ -40,50 +34,6 @@ HYPERPARAMETERS = {
     "ppo": (dict(n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, gamma=0.99),  # + VecNormalize
             {"Swimmer-v5": dict(gamma=0.9999)}),
 }
-
-
-def bundled_path(kind: str, env_id: str, mode: str | None = None) -> Path:
-    """Where a bundled policy lives; ``dr`` and ``aril`` have one per attack ``mode``."""
-    if kind not in MODE_KINDS:
-        return DATA_DIR / kind / f"{env_id}.pt"
-    if mode not in ("sensory", "physical"):
-        raise PolicyFileError(f"the bundled {kind} policies are trained per attack mode: it takes mode sensory or "
-                              f"physical (got {mode}); for another mode pass the file, e.g. {DATA_DIR / kind}/"
-                              f"{env_id}-sensory.pt")
-    return DATA_DIR / kind / f"{env_id}-{mode}.pt"
-
-
-def bundled_file(name: str, env_id: str, mode: str | None = None) -> Path:
-    """The file of a bundled policy name, with the bundled ones listed when it is missing."""
-    kind = BUNDLED_DEFAULT if name == "bundled" else name
-    path = bundled_path(kind, env_id, mode)
-    if not path.is_file():
-        raise PolicyFileError(f"no bundled {kind} for {env_id}{f' ({mode})' if kind in MODE_KINDS else ''} "
-                              f"(looked for {path}); bundled: "
-                              + (", ".join(sorted(p.stem for p in (DATA_DIR / kind).glob("*.pt"))) or "none"))
-    return path
-
-
-def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
-    """A bundled name (``expert``, ``dagger``, ``aril``, ...; ``mode`` picks the ``dr``/``aril`` one) or a
-    policy file path, checked against ``env_id``."""
-    if name_or_path in BUNDLED_KINDS:
-        return load_policy(bundled_file(name_or_path, env_id, mode), env_id)
-    if not Path(name_or_path).suffix:
-        raise PolicyFileError(
-            f"{name_or_path!r} is neither a bundled policy name ({', '.join(BUNDLED_KINDS)}) nor a file path"
-        )
-    return load_policy(name_or_path, env_id)
-
-
-def git_revision() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=DATA_DIR.parent, capture_output=True, text=True, timeout=5
-        )
-        return out.stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
 
 
 def _linears(module) -> list[torch.nn.Linear]:
@@ -122,12 +72,12 @@ def export_ppo_actor(model, normalizer, env_id: str, provenance: dict) -> MLPPol
 class ExpertConfig:
     """Arguments of ``aril train-expert``."""
 
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     algo: str = arg("sac", "sac (off-policy, sample-efficient) or ppo (on-policy, cheap per step)")
     steps: int = arg(300_000, "environment steps of training")
     seed: int = arg(0, "seed of the algorithm and of its env")
     eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
-    eval_episodes: int = arg(5, "deterministic episodes per evaluation (env seeds 10000...)")
+    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
     out: str = arg("", "where to write the expert (default: the bundled aril_ros/data/expert/<env>.pt)")
     threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)")
     checkpoint: str = arg("", "a folder to save the training state to at every evaluation (resume:= takes it)")
@@ -137,12 +87,13 @@ class ExpertConfig:
 
 
 def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=None, label: str = "train-expert",
-                 command: str = "", provenance: dict | None = None, status=lambda: "") -> Path:
+                 made_by: dict | None = None, provenance: dict | None = None, status=lambda: "") -> Path:
     """Train on ``cfg.env``, keep the best exported actor by evaluation, write it, return its path.
 
     Learners built on the same loop (GAIL) pass ``wrap_env`` (applied to the gymnasium env, e.g. to
     swap the reward), ``on_rollout_end`` (called after each PPO rollout), their ``label``, the
-    ``command`` that reproduces them, extra ``provenance`` and a ``status()`` text for the evaluation lines."""
+    ``made_by`` (the :func:`aril_ros.provenance.stamp` of their own command and settings), extra ``provenance``
+    and a ``status()`` text for the evaluation lines."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -156,7 +107,8 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
     out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
-    command = command or command_line("aril train-expert", cfg)
+    made_by = made_by or stamp("aril train-expert", cfg)
+    command = made_by["command"]
     wrap_env = wrap_env or (lambda env: env)
     resume = Path(cfg.resume) if cfg.resume else None
     state = json.loads((resume / "state.json").read_text()) if resume else {}
@@ -199,19 +151,17 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
         record = {
             "algorithm": f"stable-baselines3 {cfg.algo.upper()}",
             "hyperparameters": hyper,
-            "command": command,
+            **made_by,
             **({"resumed_from": commands[:-1]} if len(commands) > 1 else {}),
             "steps": step,
             "train_seconds": round(time.time() - started, 1),
             "seed": cfg.seed,
-            "git_revision": git_revision(),
-            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "torch": torch.__version__,
             **(provenance or {}),
         }
         policy = export(record)
         engine = RolloutEngine(cfg.env, policy, policy, n_envs=cfg.eval_episodes)
-        returns = engine.rollout(cfg.eval_episodes, seed=10_000).returns
+        returns = engine.rollout(cfg.eval_episodes, seed=seeds.SELECTION).returns
         engine.close()
         mean, std = float(returns.mean()), float(returns.std())
         kept = mean > best["mean_return"]
@@ -221,7 +171,7 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
             flush=True,
         )
         if kept:
-            record["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": 10_000, "mean_return": mean}
+            record["selection"] = {"eval_episodes": cfg.eval_episodes, "eval_seed": seeds.SELECTION, "mean_return": mean}
             best.update(mean_return=mean)
             save_policy(policy, out)
         if cfg.checkpoint:

@@ -20,8 +20,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from .args import arg, command_line
-from .experts import ExpertConfig, resolve_policy, train_expert
+from . import seeds
+from .args import arg
+from .experts import ExpertConfig, train_expert
+from .policy import resolve_policy
+from .provenance import stamp
+from .registry import DEFAULT_ENV
 from .rollout import RolloutEngine
 
 
@@ -29,9 +33,9 @@ from .rollout import RolloutEngine
 class GailConfig:
     """Arguments of ``aril train-gail``."""
 
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the demonstrator: a bundled name or a policy file")
-    demos: int = arg(10, "clean expert demonstrations (1000 steps each, env seeds 20000...)")
+    demos: int = arg(10, f"clean expert demonstrations (1000 steps each, env seeds {seeds.GAIL_DEMOS}...)")
     steps: int = arg(1_000_000, "generator (PPO) environment steps")
     disc_hidden: int = arg(64, "width of the discriminator's two hidden layers")
     disc_lr: float = arg(3e-4, "discriminator Adam learning rate")
@@ -39,7 +43,7 @@ class GailConfig:
     disc_batch: int = arg(256, "discriminator minibatch size")
     seed: int = arg(0, "seed of PPO, its env and the discriminator")
     eval_every: int = arg(50_000, "evaluate (and keep if best) the generator every this many steps")
-    eval_episodes: int = arg(5, "deterministic episodes per evaluation (env seeds 10000...)")
+    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
     out: str = arg("", "where to write the policy (default runs/gail-<env>.pt)")
     threads: int = arg(1, "torch threads")
 
@@ -94,7 +98,7 @@ def train_gail(cfg: GailConfig, log=print) -> Path:
     torch.set_num_threads(cfg.threads)
     expert = resolve_policy(cfg.expert, cfg.env)
     engine = RolloutEngine(cfg.env, expert, expert, n_envs=min(cfg.demos, 16))
-    demos = engine.rollout(cfg.demos, seed=20_000)
+    demos = engine.rollout(cfg.demos, seed=seeds.GAIL_DEMOS)
     engine.close()
     demo_obs, demo_act = demos.true_obs[demos.step_mask], demos.action[demos.step_mask]
     with torch.random.fork_rng():
@@ -128,7 +132,6 @@ def train_gail(cfg: GailConfig, log=print) -> Path:
                 optimizer.step()
         stats["disc_loss"] = float(loss.detach())
 
-    command = command_line("aril train-gail", cfg)
     provenance = {"algorithm": "GAIL (generator: stable-baselines3 PPO)", "expert": cfg.expert,
                   "expert_provenance": expert.meta.provenance, "demos": cfg.demos,
                   "discriminator": {"hidden": cfg.disc_hidden, "lr": cfg.disc_lr, "epochs": cfg.disc_epochs}}
@@ -136,4 +139,4 @@ def train_gail(cfg: GailConfig, log=print) -> Path:
                              eval_episodes=cfg.eval_episodes, out=cfg.out or f"runs/gail-{cfg.env}.pt",
                              threads=cfg.threads)
     return train_expert(generator, log=log, wrap_env=wrap, on_rollout_end=train_discriminator, label="train-gail",
-                        command=command, provenance=provenance, status=lambda: f"  disc loss {stats['disc_loss']:.3f}")
+                        made_by=stamp("aril train-gail", cfg), provenance=provenance, status=lambda: f"  disc loss {stats['disc_loss']:.3f}")

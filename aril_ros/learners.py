@@ -7,17 +7,18 @@ clean expert demonstrations, one fit.
 """
 from __future__ import annotations
 
-import datetime
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from .args import arg, command_line
+from . import seeds
+from .args import arg
 from .dataset import DaggerDataset
-from .experts import bundled_path, git_revision, resolve_policy
-from .policy import MLPPolicy, meta_for_env, save_policy
+from .policy import MLPPolicy, meta_for_env, resolve_policy, save_policy
+from .provenance import stamp
+from .registry import DEFAULT_ENV, bundled_path
 from .rollout import RolloutEngine
 
 
@@ -49,14 +50,15 @@ def fit_policy(data: DaggerDataset, env_id: str, hidden: int = 64, epochs: int =
 class BCConfig:
     """Arguments of ``aril train-bc``."""
 
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the demonstrator: a bundled name or a policy file")
     episodes: int = arg(10, "clean expert demonstrations (1000 steps each)")
     hidden: int = arg(64, "width of the two hidden layers")
     epochs: int = arg(30, "passes over the demonstrations")
     lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
     batch: int = arg(256, "minibatch size")
-    seed: int = arg(0, "seed of the demonstrations (env seeds seed*1000+i), the weights and the batches")
+    seed: int = arg(0, "seed of the weights and the batches; the demonstrations take the seed's training "
+                       "block (aril_ros.seeds.collection(seed, 0))")
     out: str = arg("", "where to write the policy (default: the bundled aril_ros/data/bc/<env>.pt)")
 
 
@@ -64,15 +66,13 @@ def train_bc(cfg: BCConfig, log=print) -> Path:
     torch.set_num_threads(1)
     expert = resolve_policy(cfg.expert, cfg.env)
     engine = RolloutEngine(cfg.env, expert, expert, n_envs=min(cfg.episodes, 32))
-    demos = DaggerDataset.from_trajectories(engine.rollout(cfg.episodes, seed=cfg.seed * 1000))
+    demos = DaggerDataset.from_trajectories(engine.rollout(cfg.episodes, seed=seeds.collection(cfg.seed, 0)))
     log(f"[train-bc {cfg.env}] {len(demos)} expert steps from {cfg.episodes} episodes", flush=True)
-    provenance = {"algorithm": "behaviour cloning", "command": command_line("aril train-bc", cfg),
-                  "expert": cfg.expert, "expert_provenance": expert.meta.provenance, "samples": len(demos),
-                  "seed": cfg.seed, "git_revision": git_revision(),
-                  "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    provenance = {"algorithm": "behaviour cloning", **stamp("aril train-bc", cfg), "expert": cfg.expert,
+                  "expert_provenance": expert.meta.provenance, "samples": len(demos), "seed": cfg.seed}
     policy = fit_policy(demos, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch, cfg.seed, provenance)
-    returns = RolloutEngine(cfg.env, policy, expert, n_envs=5).rollout(5, seed=10_000).returns
-    policy.meta.provenance["eval"] = {"episodes": 5, "seed": 10_000, "mean_return": float(returns.mean())}
+    returns = RolloutEngine(cfg.env, policy, expert, n_envs=5).rollout(5, seed=seeds.SELECTION).returns
+    policy.meta.provenance["eval"] = {"episodes": 5, "seed": seeds.SELECTION, "mean_return": float(returns.mean())}
     out = save_policy(policy, cfg.out or bundled_path("bc", cfg.env))
     log(json.dumps({"env": cfg.env, "out": str(out), "eval_return": round(float(returns.mean()), 1)}))
     return out

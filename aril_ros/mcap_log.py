@@ -33,7 +33,7 @@ from mcap.writer import CompressionType, Writer
 from . import protocol as P
 from .dataset import DaggerDataset
 from .protocol import StepTag
-from .rollout import StepArrays
+from .step import StepArrays, missing_topics
 
 _TIME = "int32 sec\nuint32 nanosec\n"
 SCHEMAS = {
@@ -203,11 +203,9 @@ def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
 
 
 def _assemble(path, meta, end, order, steps, clock_by_stamp) -> RunLog:
-    needed = [t.lstrip("/") for t in P.STEP_TOPICS if t != P.CLOCK]
     for tag in order:
-        missing = [t for t in needed if t not in steps[tag]]
-        if steps[tag]["stamp"] not in clock_by_stamp:
-            missing.append(P.CLOCK)
+        have = {*steps[tag], *([P.CLOCK] if steps[tag]["stamp"] in clock_by_stamp else [])}
+        missing = missing_topics(have)
         if missing:
             raise RunLogError(f"{path}: step {tag} misses {', '.join(missing)}")
     last_step: dict[int, int] = {}
@@ -269,8 +267,8 @@ def recover(path: str | Path, out: str | Path) -> int:
     camera = _absolute(P.CAMERA)
     writer = RunLogWriter(out, metadata["aril_run"], camera=camera in channels.values())
     for stamp in sorted(pending):
-        messages = {t: pending[stamp].get(_absolute(t)) for t in P.STEP_TOPICS}
-        if all(v is not None for v in messages.values()):
+        messages = {t: pending[stamp][_absolute(t)] for t in P.STEP_TOPICS if _absolute(t) in pending[stamp]}
+        if not missing_topics(messages):
             writer.write_step(stamp, messages)
             if camera in pending[stamp]:
                 writer.write_frame(stamp, pending[stamp][camera])

@@ -13,8 +13,9 @@ loading never runs pickled code and needs none of the training code::
 
 The network is the paper's: two hidden layers. Its output is the action mean, squashed by ``tanh``
 into the action bounds (``squash="tanh"``, SAC-style) or clipped to them (``squash="clip"``). The
-deterministic mean action is used for evaluation; :meth:`MLPPolicy.sample` draws the Gaussian
-``N(mean, exp(log_std))`` used in training.
+deterministic mean action is what every rollout, node and attack uses.
+
+:func:`resolve_policy` turns what a user types (a bundled name or a file path) into a policy.
 """
 from __future__ import annotations
 
@@ -25,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
+
+from .registry import BUNDLED_NAMES, BundledFileError, bundled_file
 
 VERSION = 1
 _ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
@@ -70,7 +73,7 @@ class PolicyMeta:
             raise PolicyFileError("action bounds do not match act_dim")
 
 
-def _blocks(rows: np.ndarray) -> tuple[tuple[torch.Tensor, ...], int]:
+def in_blocks(rows: np.ndarray) -> tuple[tuple[torch.Tensor, ...], int]:
     """``rows`` as float32 blocks of BLOCK_ROWS rows (zero-padded), and the number of real rows."""
     n = rows.shape[0]
     padded = np.zeros((-(-n // BLOCK_ROWS) * BLOCK_ROWS, rows.shape[1]), dtype=np.float32)
@@ -90,7 +93,7 @@ def meta_for_env(env_id: str, **fields) -> PolicyMeta:
 class MLPPolicy(nn.Module):
     """obs -> normalise -> Linear-act-Linear-act-Linear -> squash into the action bounds."""
 
-    def __init__(self, meta: PolicyMeta, log_std_init: float = -0.5):
+    def __init__(self, meta: PolicyMeta):
         super().__init__()
         self.meta = meta
         act = _ACTIVATIONS[meta.activation]
@@ -98,7 +101,8 @@ class MLPPolicy(nn.Module):
         self.net = nn.Sequential(
             nn.Linear(meta.obs_dim, h1), act(), nn.Linear(h1, h2), act(), nn.Linear(h2, meta.act_dim)
         )
-        self.log_std = nn.Parameter(torch.full((meta.act_dim,), float(log_std_init)))
+        # part of the file format (every policy file carries it); no rollout samples from it
+        self.log_std = nn.Parameter(torch.full((meta.act_dim,), -0.5))
         low = torch.tensor(meta.action_low, dtype=torch.float32)
         high = torch.tensor(meta.action_high, dtype=torch.float32)
         self.register_buffer("action_low", low, persistent=False)
@@ -118,12 +122,6 @@ class MLPPolicy(nn.Module):
             return self.action_low + (torch.tanh(out) + 1.0) * 0.5 * (self.action_high - self.action_low)
         return torch.maximum(torch.minimum(out, self.action_high), self.action_low)
 
-    def sample(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Gaussian exploration action ``N(mean, exp(log_std))`` clipped to the action bounds."""
-        mean = self(obs)
-        noise = torch.randn(mean.shape, generator=generator)
-        return torch.maximum(torch.minimum(mean + noise * self.log_std.exp(), self.action_high), self.action_low)
-
     @torch.inference_mode()
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (float64) for a batch ``[n, obs_dim]`` or a single observation.
@@ -131,14 +129,14 @@ class MLPPolicy(nn.Module):
         Batch-invariant: row i of the result does not depend on the other rows (see BLOCK_ROWS).
         """
         obs = np.asarray(obs)
-        blocks, n = _blocks(np.atleast_2d(obs))
+        blocks, n = in_blocks(np.atleast_2d(obs))
         actions = torch.cat([self(block) for block in blocks])[:n].double().numpy()
         return actions[0] if obs.ndim == 1 else actions
 
     def loss_gradient(self, obs: np.ndarray, target: np.ndarray) -> np.ndarray:
         """``d/d obs ||pi(obs) - target||^2`` per row (float64), batch-invariant like :meth:`act`."""
-        blocks, n = _blocks(np.atleast_2d(obs))
-        targets, _ = _blocks(np.atleast_2d(target))
+        blocks, n = in_blocks(np.atleast_2d(obs))
+        targets, _ = in_blocks(np.atleast_2d(target))
         grads = []
         for block, target_block in zip(blocks, targets):
             block = block.clone().requires_grad_(True)
@@ -216,3 +214,18 @@ def load_policy(path: str | Path, env_id: str | None = None) -> MLPPolicy:
         except PolicyFileError as err:
             raise PolicyFileError(f"{path}: {err}") from None
     return policy
+
+
+def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
+    """A bundled name (``expert``, ``dagger``, ``aril``, ...; ``mode`` picks the ``dr``/``aril`` one) or a
+    policy file path, checked against ``env_id``."""
+    if name_or_path in BUNDLED_NAMES:
+        try:
+            return load_policy(bundled_file(name_or_path, env_id, mode), env_id)
+        except BundledFileError as err:
+            raise PolicyFileError(str(err)) from None
+    if not Path(name_or_path).suffix:
+        raise PolicyFileError(
+            f"{name_or_path!r} is neither a bundled policy name ({', '.join(BUNDLED_NAMES)}) nor a file path"
+        )
+    return load_policy(name_or_path, env_id)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .args import arg
+from .registry import ATTACKS, DEFAULT_ENV
 
 class RenderError(RuntimeError):
     """No offscreen GL backend: says which Debian packages give one."""
@@ -33,11 +34,11 @@ GL_HELP = ("offscreen rendering failed: MuJoCo needs Mesa's EGL (apt-get install
 class RenderConfig:
     """Arguments of ``aril render``."""
 
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     mode: str = arg("sensory", "sensory or physical (the attacked panels)")
     panels: str = arg("dagger:none,dagger:aril_a,aril:aril_a",
                       "comma-separated policy:attack panels; policy is a bundled name (aril and dr: the one of "
-                      "mode:=), attack one of none, random, fgsm, fgsm_k, aril_a (the bundled ARIL-A trained against "
+                      f"mode:=), attack one of {', '.join(ATTACKS)} (aril_a: the bundled ARIL-A trained against "
                       "that bundled policy)")
     eps: float = arg(0.0, "attack budget (0: the calibrated one for env and mode)")
     steps: int = arg(300, "control steps of the episode")
@@ -89,21 +90,21 @@ def _panel_frames(cfg: RenderConfig, policy_name: str, attack_name: str) -> tupl
     """One panel's labelled frames and its return; runs in a process whose MUJOCO_GL is already set."""
     from PIL import Image, ImageDraw
 
-    from .adversary import defense_adversary_path
-    from .attacks import attack_budget, make_attack
+    from .attacks import make_attack
     from .envs import layout_of
-    from .experts import resolve_policy
+    from .policy import resolve_policy
+    from .registry import adversary_path, attack_budget
     from .rollout import RolloutEngine
 
     layout = layout_of(cfg.env)
     mode = "clean" if attack_name == "none" else cfg.mode
     policy = resolve_policy(policy_name, cfg.env, cfg.mode)
     expert = resolve_policy("expert", cfg.env)
-    adversary = str(defense_adversary_path(cfg.env, cfg.mode, policy_name)) if attack_name == "aril_a" else None
+    adversary = str(adversary_path(cfg.env, cfg.mode, policy_name)) if attack_name == "aril_a" else None
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, adversary=adversary, mode=mode)
     engine = RolloutEngine(cfg.env, policy, expert, attack, mode, 1, cfg.steps)
-    sim = engine.sims[0]
+    sim = engine.sims.sims[0]
     renderer = FrameRenderer(sim, cfg.width, cfg.height)
     label = f"{policy_name}, {'clean' if attack_name == 'none' else f'{attack_name} eps {attack.eps:g}'}"
     frames, total = [], 0.0

@@ -2,19 +2,9 @@
 
 Per step and per running episode the engine produces the true observation ``s``, the perturbation
 ``delta`` (from the attack, on the true observation), the observation the policy sees, the policy's
-action ``a``, the expert's action on the *true* observation ``a_e``, the reward and ``done``.
-
-Modes (the paper's eqs. 5 and 6):
-
-- ``clean``: the policy sees ``s``; no attack.
-- ``sensory``: the policy sees ``s + delta``; the simulator is untouched.
-- ``physical``: the simulator's zero-order state is moved by ``delta`` before the policy acts, so the
-  policy sees the observation of the moved state and the dynamics continue from it. The expert
-  labels ``s``, the state before the attack, as in eq. 6.
-
-Episode ``i`` of a rollout with ``seed`` resets its env with ``seed + i`` and draws attack noise
-from ``np.random.default_rng([seed, i])``, so its trajectory does not depend on how many envs run
-side by side, and the same seed gives identical arrays.
+action ``a``, the expert's action on the *true* observation ``a_e``, the reward and ``done`` — by the
+rules of :mod:`aril_ros.step` (modes, per-episode seeds and noise), which the ROS graph follows too.
+:class:`SimBatch` is the N simulators stepped side by side; the adversary trainer steps through it too.
 """
 from __future__ import annotations
 
@@ -26,25 +16,8 @@ import numpy as np
 from .attacks import Attack, NoAttack
 from .envs import HORIZON, MujocoSim, layout_of
 from .policy import MLPPolicy
-
-MODES = ("clean", "sensory", "physical")
-
-
-@dataclass
-class StepArrays:
-    """What every step records, whether run in-process or read back from a graph's log."""
-
-    true_obs: np.ndarray
-    """the true observation, which the expert labels"""
-    obs: np.ndarray
-    """the observation the policy saw"""
-    delta: np.ndarray
-    """the attack's perturbation (observation coordinates)"""
-    action: np.ndarray
-    """the policy's action"""
-    expert_action: np.ndarray
-    """the expert's action on the true observation"""
-    reward: np.ndarray
+from .registry import MODES, check_name
+from .step import StepArrays, disagreement, episode_rng, episode_seed, sensory_observation
 
 
 @dataclass
@@ -72,28 +45,44 @@ class Trajectories(StepArrays):
         return np.arange(self.reward.shape[1])[None, :] < self.length[:, None]
 
     @property
-    def expert_loss(self) -> np.ndarray:
-        """Per episode, the mean over its steps of ``||a - a_e||^2``."""
-        sq = ((self.action - self.expert_action) ** 2).sum(axis=2)
-        return sq.sum(axis=1) / self.length
-
-    @property
     def mean_expert_loss(self) -> float:
         """``||a - a_e||^2`` averaged over every step of every episode."""
-        sq = ((self.action - self.expert_action) ** 2).sum(axis=2)
-        return float(sq.sum() / self.length.sum())
+        return float(disagreement(self.action, self.expert_action).sum() / self.length.sum())
 
 
-def apply_perturbation(mode: str, sims: list[MujocoSim], true_obs: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """What the policy sees: ``s + delta`` (sensory, clean) or, physical, the observation of each
-    simulator after its real state has been moved by ``delta``."""
-    if mode == "physical":
-        return np.stack([sim.perturb(d) for sim, d in zip(sims, delta)])
-    return true_obs + delta
+class SimBatch:
+    """``n`` simulators of one env stepped side by side; ``rows`` picks the ones a call concerns."""
 
+    def __init__(self, env_id: str, n: int, horizon: int = HORIZON):
+        self.sims = [MujocoSim(env_id, horizon) for _ in range(max(1, int(n)))]
 
-def episode_rng(seed: int, episode: int) -> np.random.Generator:
-    return np.random.default_rng([seed, episode])
+    def __len__(self) -> int:
+        return len(self.sims)
+
+    def reset(self, seeds, rows=None) -> np.ndarray:
+        """Reset the simulators of ``rows`` (default: the first ``len(seeds)``) with ``seeds``; their observations."""
+        rows = range(len(seeds)) if rows is None else rows
+        return np.stack([self.sims[k].reset(int(seed)) for k, seed in zip(rows, seeds)])
+
+    def seen(self, mode: str, true_obs: np.ndarray, delta: np.ndarray, rows) -> np.ndarray:
+        """What the policy sees, by the mode's rule: ``s + delta``, or (physical) the observation of each
+        simulator after its real state has been moved by ``delta``."""
+        if mode == "physical":
+            return np.stack([self.sims[k].perturb(d) for k, d in zip(rows, delta)])
+        return sensory_observation(true_obs, delta)
+
+    def step(self, action: np.ndarray, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the simulators of ``rows`` one control step: observation, reward, terminated, truncated."""
+        obs, reward = [], np.empty(len(action))
+        terminated, truncated = np.empty(len(action), dtype=bool), np.empty(len(action), dtype=bool)
+        for row, k in enumerate(rows):
+            o, reward[row], terminated[row], truncated[row] = self.sims[k].step(action[row])
+            obs.append(o)
+        return np.stack(obs), reward, terminated, truncated
+
+    def close(self) -> None:
+        for sim in self.sims:
+            sim.close()
 
 
 class RolloutEngine:
@@ -109,8 +98,7 @@ class RolloutEngine:
         n_envs: int = 8,
         horizon: int = HORIZON,
     ):
-        if mode not in MODES:
-            raise ValueError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
+        check_name("mode", mode, MODES)
         self.layout = layout_of(env_id)
         for who, net in (("policy", policy), ("expert", expert)):
             try:
@@ -121,11 +109,10 @@ class RolloutEngine:
             raise ValueError(f"mode clean runs no attack, got attack {attack.name!r}")
         self.policy, self.expert, self.mode, self.horizon = policy, expert, mode, horizon
         self.attack = attack if attack is not None else NoAttack(self.layout, 0.0)
-        self.sims = [MujocoSim(env_id, horizon) for _ in range(max(1, int(n_envs)))]
+        self.sims = SimBatch(env_id, n_envs, horizon)
 
     def close(self) -> None:
-        for sim in self.sims:
-            sim.close()
+        self.sims.close()
 
     def iter_steps(self, episodes: int, seed: int = 0) -> Iterator[StepBatch]:
         """Yield a :class:`StepBatch` per step, running ``len(self.sims)`` episodes at a time."""
@@ -134,21 +121,17 @@ class RolloutEngine:
             yield from self._run_group(np.arange(first, min(first + n, episodes)), seed)
 
     def _run_group(self, episode_ids: np.ndarray, seed: int) -> Iterator[StepBatch]:
-        sims = self.sims[: len(episode_ids)]
         rngs = [episode_rng(seed, int(i)) for i in episode_ids]
-        obs = np.stack([sim.reset(seed + int(i)) for sim, i in zip(sims, episode_ids)])
+        obs = self.sims.reset([episode_seed(seed, int(i)) for i in episode_ids])
         running = np.arange(len(episode_ids))
         for t in range(self.horizon):
             true_obs = obs[running]
             delta = self.attack.perturb(true_obs, [rngs[k] for k in running])
-            seen = apply_perturbation(self.mode, [sims[k] for k in running], true_obs, delta)
+            seen = self.sims.seen(self.mode, true_obs, delta, running)
             action = self.policy.act(seen)
             expert_action = self.expert.act(true_obs)
-            reward = np.empty(len(running))
-            done = np.empty(len(running), dtype=bool)
-            for row, k in enumerate(running):
-                obs[k], reward[row], terminated, truncated = sims[k].step(action[row])
-                done[row] = terminated or truncated
+            obs[running], reward, terminated, truncated = self.sims.step(action, running)
+            done = terminated | truncated
             yield StepBatch(true_obs=true_obs, obs=seen, delta=delta, action=action, expert_action=expert_action,
                             reward=reward, t=t, episodes=episode_ids[running], done=done)
             running = running[~done]
