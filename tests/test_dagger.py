@@ -89,7 +89,7 @@ def test_bad_arguments_are_refused(tmp_path):
 
 
 def test_dr_takes_the_calibrated_eps_by_default(tmp_path):
-    from aril_ros.attacks import calibrated_eps
+    from aril_ros.registry import calibrated_eps
 
     train_learner(small(tmp_path, algorithm="dr", mode="physical", rounds=1), log=quiet)
     assert load_policy(tmp_path / "out.pt").meta.provenance["eps"] == calibrated_eps("Swimmer-v5", "physical")

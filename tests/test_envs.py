@@ -90,17 +90,24 @@ def test_reset_is_seeded_not_global():
     assert not np.array_equal(oa, a.reset(seed=8))
 
 
-def test_perturbed_state_vector_matches_in_place_perturbation():
-    from aril_ros.envs import perturbed_state
+def test_physical_perturbation_moves_exactly_the_observed_qpos_entries():
+    import mujoco
+
+    from aril_ros.step import physical_state
 
     a, b = MujocoSim("Ant-v5"), MujocoSim("Ant-v5")
     a.reset(seed=2)
     b.reset(seed=2)
     delta = np.zeros(a.layout.obs_dim)
     delta[a.layout.position] = np.random.default_rng(0).uniform(-0.1, 0.1, a.layout.n_position)
+    before = a.get_state()
     obs_a = a.perturb(delta)
-    b.set_state(perturbed_state(b.layout, b.get_state(), delta))
+    # the rule, written out by hand on MuJoCo's own arrays: qpos[k:] += delta[position], nothing else
+    b.data.qpos[b.layout.qpos_offset:] += delta[b.layout.position]
+    mujoco.mj_forward(b.model, b.data)
     np.testing.assert_array_equal(obs_a, b.observe())
+    np.testing.assert_array_equal(np.asarray(obs_a)[a.layout.position],
+                                  physical_state(a.layout, before, delta)[1 + a.layout.qpos_offset:][:a.layout.n_position])
     np.testing.assert_array_equal(a.get_state(), b.get_state())
     assert len(a.state_names) == a.state_size and a.state_names[0] == "time"
     assert a.state_names[1] == "root[0]:pos"

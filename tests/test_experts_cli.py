@@ -7,9 +7,10 @@ import pytest
 
 from aril_ros.args import ArgumentError, parse_args
 from aril_ros.cli import EvalConfig, main
-from aril_ros.envs import PAPER_ENVS, make_gym_env
-from aril_ros.experts import bundled_path, export_sac_actor, resolve_policy
-from aril_ros.policy import PolicyFileError, save_policy
+from aril_ros.envs import make_gym_env
+from aril_ros.experts import export_sac_actor
+from aril_ros.policy import PolicyFileError, resolve_policy, save_policy
+from aril_ros.registry import PAPER_ENVS, bundled_path
 
 
 def test_exported_sac_actor_acts_exactly_like_sb3():
