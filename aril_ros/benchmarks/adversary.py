@@ -1,28 +1,33 @@
-#!/usr/bin/env python3
 """Adversary-training throughput: ARIL-A (ours) vs stable-baselines3 PPO on the same env.
 
-    .venv/bin/python benchmarks/bench_adversary.py env:=HalfCheetah-v5 steps:=65536
+    python -m aril_ros.benchmarks.adversary env:=HalfCheetah-v5 steps:=65536
 
 Both train a two-hidden-layer (64) Gaussian policy with a value head, 10 epochs per update, for the
 same number of env steps, one torch thread each. Ours also runs the victim and the expert at every
 step (the adversary's reward); SB3's PPO trains an ordinary policy on the env reward — the tool a
-user would otherwise pick. SB3 is measured with 1 env (its default) and with as many envs as ours.
+user would otherwise pick. SB3 is measured with 1 env (its default) and with as many envs as ours. The
+last line is the figures as JSON (what ``aril report`` reads).
 """
 import json
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
-from aril_ros.adversary import AdversaryConfig, train_adversary
-from aril_ros.args import arg, parse_args, usage
-from aril_ros.envs import make_gym_env
+from ..adversary import AdversaryConfig, train_adversary
+from ..args import arg, parse_args, usage
+from ..envs import make_gym_env
+from ..registry import DEFAULT_ENV
 
 
 @dataclass
 class AdversaryBenchConfig:
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    """Arguments of ``python -m aril_ros.benchmarks.adversary``."""
+
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     steps: int = arg(65_536, "env steps per measurement")
     n_envs: int = arg(64, "our simulators side by side (and SB3's vectorised measurement); 4096 steps per update")
     eps: float = arg(0.05, "the adversary's budget")
@@ -31,9 +36,11 @@ class AdversaryBenchConfig:
 def ours(cfg) -> float:
     """Steps/s as the trainer measures it: from the first collected step, set-up excluded like SB3's."""
     lines = []
-    train_adversary(AdversaryConfig(env=cfg.env, eps=cfg.eps, steps=cfg.steps, n_envs=cfg.n_envs,
-                                    rollout=4096 // cfg.n_envs, minibatch=1024, out="/tmp/aril_bench_adversary.pt"),
-                    log=lambda line, **_: lines.append(line))
+    with tempfile.TemporaryDirectory() as scratch:
+        train_adversary(AdversaryConfig(env=cfg.env, eps=cfg.eps, steps=cfg.steps, n_envs=cfg.n_envs,
+                                        rollout=4096 // cfg.n_envs, minibatch=1024,
+                                        out=str(Path(scratch) / "adversary.pt")),
+                        log=lambda line, **_: lines.append(line))
     return json.loads(lines[-1])["steps_per_s"]
 
 
@@ -51,7 +58,7 @@ def sb3(cfg, n_envs: int) -> float:
 
 def main(argv):
     if "--help" in argv or "-h" in argv:
-        print(usage(AdversaryBenchConfig, "benchmarks/bench_adversary.py", __doc__.strip().splitlines()[0]))
+        print(usage(AdversaryBenchConfig, "python -m aril_ros.benchmarks.adversary", __doc__.strip().splitlines()[0]))
         return
     cfg = parse_args(AdversaryBenchConfig, argv)
     torch.set_num_threads(1)

@@ -1,11 +1,11 @@
-#!/usr/bin/env python3
 """Engine overhead benchmark: raw ``env.step`` vs the rollout engine with policy + expert in the loop.
 
-    python benchmarks/bench_engine.py env:=HalfCheetah-v5 steps:=20000 n_envs:=8
+    python -m aril_ros.benchmarks.engine env:=HalfCheetah-v5 steps:=20000 n_envs:=8
 
 Prints steps/s of (1) gymnasium ``env.step`` with precomputed random actions, (2) the engine in
 ``clean`` mode and (3) in ``sensory`` and ``physical`` mode with the random attack, each with the
-bundled expert (or ``policy:=``) as both policy and labeller, and each engine figure as a ratio of the raw one.
+bundled expert (or ``policy:=``) as both policy and labeller, and each engine figure as a ratio of the raw
+one; the last line is the figures as JSON (what ``aril report`` reads).
 """
 import json
 import sys
@@ -15,16 +15,19 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from aril_ros.args import arg, parse_args, usage
-from aril_ros.attacks import make_attack
-from aril_ros.envs import layout_of, make_gym_env
-from aril_ros.experts import resolve_policy
-from aril_ros.rollout import RolloutEngine
+from ..args import arg, parse_args, usage
+from ..attacks import make_attack
+from ..envs import layout_of, make_gym_env
+from ..policy import resolve_policy
+from ..registry import DEFAULT_ENV, MODES
+from ..rollout import RolloutEngine
 
 
 @dataclass
 class BenchConfig:
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    """Arguments of ``python -m aril_ros.benchmarks.engine``."""
+
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     steps: int = arg(20_000, "environment steps per measurement")
     n_envs: int = arg(32, "simulators the engine runs side by side")
     policy: str = arg("expert", "policy (and labeller): a bundled name or a policy file")
@@ -61,13 +64,13 @@ def engine_steps_per_s(cfg: BenchConfig, mode: str) -> float:
 
 def main(argv):
     if "--help" in argv or "-h" in argv:
-        print(usage(BenchConfig, "benchmarks/bench_engine.py", __doc__.strip().splitlines()[0]))
+        print(usage(BenchConfig, "python -m aril_ros.benchmarks.engine", __doc__.strip().splitlines()[0]))
         return
     cfg = parse_args(BenchConfig, argv)
     torch.set_num_threads(cfg.threads)
     raw = raw_steps_per_s(cfg.env, cfg.steps)
     rows = {"raw env.step": raw}
-    for mode in ("clean", "sensory", "physical"):
+    for mode in MODES:
         rows[f"engine {mode}"] = engine_steps_per_s(cfg, mode)
     print(f"{cfg.env}, {cfg.steps} steps each, engine n_envs={cfg.n_envs}, torch threads={cfg.threads}")
     print(f"{'':<18}{'steps/s':>10}{'vs raw':>9}")
