@@ -95,16 +95,23 @@ class AdversaryConfig:
 
 def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     """Train ARIL-A against ``cfg.victim`` (or ``victim``: any object with ``act(obs_batch)`` and
-    ``meta.provenance``); writes the adversary file, returns its path."""
+    ``meta.provenance``); writes the adversary file, returns its path. A victim name registered by an
+    installed package (``ros``: a live policy node) is connected for the training and closed after."""
     check_config(cfg)
-    torch.set_num_threads(cfg.threads)
-    if victim is None and cfg.victim in plugins.names("aril_ros.victims"):  # e.g. ros: a live policy node
-        victim = plugins.load("aril_ros.victims", cfg.victim)(cfg.env)
+    if victim is not None:
+        return train_against(cfg, victim, log)
+    if cfg.victim in plugins.names("aril_ros.victims"):
+        remote = plugins.load("aril_ros.victims", cfg.victim)(cfg.env)
         try:
-            return train_adversary(cfg, log, victim)
+            return train_against(cfg, remote, log)
         finally:
-            victim.close()
-    victim = victim if victim is not None else resolve_policy(cfg.victim, cfg.env)
+            remote.close()
+    return train_against(cfg, resolve_policy(cfg.victim, cfg.env), log)
+
+
+def train_against(cfg: AdversaryConfig, victim, log) -> Path:
+    """The training: scale the inputs, then collect, estimate advantages and update until ``cfg.steps``."""
+    torch.set_num_threads(cfg.threads)
     expert = resolve_policy(cfg.expert, cfg.env)
     made_by = stamp("aril train-adversary", cfg)
     sims, resets = SimBatch(cfg.env, cfg.n_envs), EnvSeeds(seeds.adversary_training(cfg.seed))
