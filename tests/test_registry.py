@@ -1,0 +1,73 @@
+"""The vocabulary and the seed ranges: defined once, and the ranges never overlap."""
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from aril_ros import registry, seeds
+
+EVALUATIONS = {"calibration": seeds.CALIBRATION, "attack table": seeds.ATTACK_TABLE,
+               "defense table": seeds.DEFENSE_TABLE, "selection": seeds.SELECTION, "gail demos": seeds.GAIL_DEMOS,
+               "learner eval": seeds.LEARNER_EVAL}
+RANGE = 1000  # episodes an evaluation may take from its first seed
+
+
+def test_evaluation_ranges_are_disjoint_and_below_every_training():
+    spans = sorted((first, first + RANGE, name) for name, first in EVALUATIONS.items())
+    for (_, end, a), (start, _, b) in itertools.pairwise(spans):
+        assert end <= start, f"{a} overlaps {b}"
+    assert spans[-1][1] <= seeds.TRAINING
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 10])
+def test_a_training_seed_collects_in_its_own_block_above_the_evaluations(seed):
+    rounds = [seeds.collection(seed, r) for r in range(50)]
+    adversary = seeds.adversary_training(seed)
+    block = seeds.training_block(seed)
+    assert all(block <= first < block + seeds.SEED_BLOCK for first in [*rounds, adversary])
+    assert min(rounds) >= seeds.TRAINING  # BC with seed:=1 no longer takes the calibration's episodes
+    assert rounds[-1] + seeds.ROUND_BLOCK <= adversary  # rounds (1000 episodes each at most) before the adversary
+    assert seeds.training_block(seed + 1) == block + seeds.SEED_BLOCK
+    with pytest.raises(ValueError, match="training seeds are >= 0"):
+        seeds.training_block(-1)
+
+
+def test_names_are_defined_once_and_consistently():
+    assert set(registry.WHITE_BOX) <= set(registry.ATTACKS) and set(registry.THREATS) <= set(registry.ATTACKS)
+    assert set(registry.PAPER_DEFENSES) <= set(registry.DEFENSES)
+    assert set(registry.PER_MODE_POLICIES) <= set(registry.DEFENSES)
+    assert registry.attack_for_mode("clean") == "none" and registry.attack_for_mode("sensory") == "random"
+    with pytest.raises(ValueError, match="unknown attack 'pgd'; choose one of none, random, fgsm, fgsm_k, aril_a"):
+        registry.attack_for_mode("sensory", "pgd")
+    with pytest.raises(ValueError, match="mode:=clean runs no attack"):
+        registry.attack_for_mode("clean", "fgsm")
+
+
+def test_bundled_files_and_the_calibration_are_package_data():
+    assert registry.CALIBRATION.is_relative_to(registry.DATA_DIR)
+    for env in registry.PAPER_ENVS:
+        for mode in registry.ATTACKED_MODES:
+            assert registry.calibrated_eps(env, mode) > 0
+            assert registry.adversary_path(env, mode).is_file()
+            assert registry.bundled_file("aril", env, mode).is_file()
+        assert registry.bundled_file("bundled", env) == registry.bundled_path("dagger", env)
+    with pytest.raises(registry.BundledFileError, match=r"no bundled dagger for Hopper-v5 .*bundled: Ant-v5"):
+        registry.bundled_file("dagger", "Hopper-v5")
+    with pytest.raises(registry.BundledFileError, match="trained per attack mode"):
+        registry.bundled_path("dr", "Swimmer-v5", "clean")
+
+
+def test_settings_travel_as_json_in_provenance():
+    from aril_ros.dagger import LearnerConfig
+    from aril_ros.policy import load_weights
+    from aril_ros.provenance import settings_of, stamp
+
+    provenance = load_weights(registry.bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]
+    cfg = settings_of(provenance, LearnerConfig, seed=2)
+    assert (cfg.algorithm, cfg.env, cfg.mode, cfg.warm_start, cfg.seed) == ("aril", "Swimmer-v5", "physical", True, 2)
+    assert "/work/" not in str(provenance)  # committed files name no machine's paths
+    made = stamp("aril train-learner", cfg)
+    assert settings_of(made, LearnerConfig) == cfg and made["command"].startswith("aril train-learner algorithm:=aril")
+    with pytest.raises(ValueError, match="records no settings"):
+        settings_of({"command": "aril train-bc"}, LearnerConfig)
