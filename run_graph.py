@@ -13,7 +13,7 @@ from bootstrap import ensure_venv
 
 def main(argv) -> int:
     from aril_ros.args import parse_args, usage
-    from nodes.orchestrator import GraphConfig, GraphError, Orchestrator
+    from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
 
     if "-h" in argv or "--help" in argv:
         print(usage(GraphConfig, "python run_graph.py", __doc__.strip().splitlines()[0]))

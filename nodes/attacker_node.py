@@ -3,13 +3,16 @@
 Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random | fgsm |
 fgsm_k | aril_a), ``eps``, ``seed``; for the white-box attacks ``victim`` (the attacked policy: a
 bundled name or a file), ``expert`` and ``k`` (fgsm_k steps); for aril_a ``attack_file`` (an
-adversary file: black-box, so it can attack any policy node, an external one included). Episode ``e`` draws its noise from ``np.random.default_rng([seed, e])``, like the in-process
-engine, so both give the same perturbations.
+adversary file: black-box, so it can attack any policy node, an external one included). ``eps`` 0
+takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
+:func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations.
 
-- clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation`` = state + delta.
+- clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation``
+  (:func:`aril_ros.step.sensory_observation`: state + delta).
 - physical: on ``sim/state`` and ``sim/physics_state`` of the same step, send the perturbed physical
-  state to ``sim/set_state``; the simulator then publishes the ``observation`` of the moved state, and
-  this node publishes ``attack/perturbation`` once the service has accepted it.
+  state (:func:`aril_ros.step.physical_state`) to ``sim/set_state``; the simulator then publishes the
+  ``observation`` of the moved state, and this node publishes ``attack/perturbation`` once the service
+  has accepted it.
 """
 from __future__ import annotations
 
@@ -20,32 +23,32 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
-from aril_ros.attacks import WHITE_BOX, attack_for_mode, make_attack
-from aril_ros.experts import resolve_policy
-from aril_ros.envs import layout_of, perturbed_state
+from aril_ros.attacks import make_attack
+from aril_ros.envs import layout_of
+from aril_ros.policy import resolve_policy
 from aril_ros.protocol import StepTag
-from aril_ros.rollout import MODES, episode_rng
-from nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for, param_msg,
-                          publishers, subscribers)
+from aril_ros.registry import DEFAULT_ENV, WHITE_BOX, attack_budget, attack_for_mode
+from aril_ros.step import episode_rng, physical_state, sensory_observation
+from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
+                                   param_msg, publishers, subscribers)
 
 
 class AttackerNode(Node):
     def __init__(self):
         super().__init__("attacker")
         torch.set_num_threads(1)  # white-box attacks run small networks one observation at a time
-        self.layout = layout_of(declared(self, "env", "HalfCheetah-v5"))
+        self.layout = layout_of(declared(self, "env", DEFAULT_ENV))
         self.mode = declared(self, "mode", "sensory")
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        attack = attack_for_mode(self.mode, declared(self, "attack", ""))
+        attack = attack_for_mode(self.mode, declared(self, "attack", ""))  # checks the mode and the attack
         victim_name, expert_name = declared(self, "victim", ""), declared(self, "expert", "expert")
         white_box = attack in WHITE_BOX
         if white_box and not victim_name:
             raise ValueError(f"attack {attack} is white-box: set the victim parameter to the attacked policy")
+        env_id = self.layout.env_id
         self.attack = make_attack(
-            attack, self.layout, declared(self, "eps", 0.0) if attack != "none" else 0.0,
-            victim=resolve_policy(victim_name, self.layout.env_id) if white_box else None,
-            expert=resolve_policy(expert_name, self.layout.env_id) if white_box else None,
+            attack, self.layout, attack_budget(env_id, self.mode, attack, declared(self, "eps", 0.0)),
+            victim=resolve_policy(victim_name, env_id, self.mode) if white_box else None,
+            expert=resolve_policy(expert_name, env_id) if white_box else None,
             steps=declared(self, "k", 10) if attack == "fgsm_k" else None,
             adversary=declared(self, "attack_file", ""), mode=self.mode)
         self.seed = declared(self, "seed", 0)
@@ -81,7 +84,8 @@ class AttackerNode(Node):
             return
         true_obs, delta = self.perturbation(msg)
         self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
-        self.observation_pub.publish(joint_state(msg.header, self.layout.names, true_obs + delta))
+        self.observation_pub.publish(joint_state(msg.header, self.layout.names,
+                                                 sensory_observation(true_obs, delta)))
 
     def on_physics(self, msg: JointState) -> None:
         self.physics[msg.header.frame_id] = msg
@@ -93,7 +97,7 @@ class AttackerNode(Node):
         state, physics = self.states.pop(tag), self.physics.pop(tag)
         _, delta = self.perturbation(state)
         request = SetParametersAtomically.Request()
-        request.parameters = [param_msg("state", perturbed_state(self.layout, physics.position, delta)),
+        request.parameters = [param_msg("state", physical_state(self.layout, physics.position, delta)),
                               param_msg("tag", tag)]
         future = self.set_state.call_async(request)
         future.add_done_callback(lambda f: self.on_set_state_done(f, state.header, delta))

@@ -7,7 +7,7 @@ import traceback
 import numpy as np
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
-from rcl_interfaces.msg import ParameterValue
+from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -106,11 +106,12 @@ def param_msg(name: str, value) -> ParameterMsg:
     """A ``rcl_interfaces/Parameter`` for an int, a string or a float sequence."""
     v = ParameterValue()
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        v.type, v.integer_value = 2, int(value)
+        v.type, v.integer_value = ParameterType.PARAMETER_INTEGER, int(value)
     elif isinstance(value, str):
-        v.type, v.string_value = 4, value
+        v.type, v.string_value = ParameterType.PARAMETER_STRING, value
     else:
-        v.type, v.double_array_value = 8, np.asarray(value, dtype=np.float64).tolist()
+        v.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+        v.double_array_value = np.asarray(value, dtype=np.float64).tolist()
     return ParameterMsg(name=name, value=v)
 
 

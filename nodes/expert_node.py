@@ -6,8 +6,8 @@ with the header of the state it labels.
 from __future__ import annotations
 
 from aril_ros import protocol as P
-from nodes.common import main_for
-from nodes.policy_node import PolicyNode
+from aril_ros_nodes.common import main_for
+from aril_ros_nodes.policy_node import PolicyNode
 
 
 class ExpertNode(PolicyNode):

@@ -1,11 +1,13 @@
 """The orchestrator behind ``run_graph.py``: starts the nodes, drives episodes, records, shuts down.
 
 It stands in for ``ros2 launch`` and ``ros2 bag record``: each node is its own process
-(``python -m nodes.<name>_node --ros-args ...``) in a ROS domain of its own; the orchestrator's
-node resets the simulator at each episode start, records every step topic (raw CDR, see
-:mod:`aril_ros.mcap_log`), prints per-episode figures and one JSON summary line, and stops every
-node on success, on Ctrl-C / SIGTERM, when a node dies (naming it and its last error) and when a
-step makes no progress for ``step_timeout`` seconds.
+(``python -m aril_ros_nodes.<name>_node --ros-args ...``, from the installed package) in a ROS domain
+of its own; the orchestrator's node resets the simulator at each episode start (env seed
+:func:`aril_ros.step.episode_seed`), records every step topic (raw CDR, see :mod:`aril_ros.mcap_log`)
+once the step is complete (:func:`aril_ros.step.missing_topics`), prints per-episode figures and one
+JSON summary line (:class:`aril_ros.step.EpisodeStats`), and stops every node on success, on Ctrl-C /
+SIGTERM, when a node dies (naming it and its last error) and when a step makes no progress for
+``step_timeout`` seconds.
 """
 from __future__ import annotations
 
@@ -26,16 +28,18 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.args import arg
-from aril_ros.attacks import ATTACK_NAMES, WHITE_BOX, attack_budget, attack_for_mode, make_attack
-from aril_ros.envs import layout_of
-from aril_ros.experts import BUNDLED_KINDS, MODE_KINDS, bundled_file, git_revision, resolve_policy
+from aril_ros.attacks import make_attack
+from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
+from aril_ros.policy import resolve_policy
 from aril_ros.protocol import StepTag
-from aril_ros.rollout import MODES
+from aril_ros.provenance import git_revision
+from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MODES,
+                               PER_MODE_POLICIES, WHITE_BOX, attack_budget, attack_for_mode)
+from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_episodes
 
-ROOT = Path(__file__).resolve().parent.parent
-NODE_MODULES = {"simulator": "nodes.simulator_node", "attacker": "nodes.attacker_node",
-                "policy": "nodes.policy_node", "expert": "nodes.expert_node"}
+NODE_MODULES = {name: f"aril_ros_nodes.{name}_node" for name in ("simulator", "attacker", "policy", "expert")}
+"""The module each node runs as (``python -m``, from the installed package: no checkout on the path)."""
 
 
 @dataclass
@@ -43,19 +47,19 @@ class GraphConfig:
     """Arguments of ``run_graph.py``."""
 
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
-    attack: str = arg("", f"one of {', '.join(ATTACK_NAMES)} (default: none when clean, random otherwise)")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
+    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one "
-                          "for env and mode, results/eps_calibration.json; aril_a: its adversary's)")
+                          "for env and mode, bundled with aril_ros; aril_a: its adversary's)")
     k: int = arg(10, "steps of fgsm_k")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
-    policy: str = arg("bundled", "bundled (the default bundled policy: the DAgger learner), expert, dagger, dart, gail, "
-                                 "bc, dr or aril (the one trained against mode:=), a policy "
-                                 "file, or external (start none, wait for one)")
+    policy: str = arg("bundled", f"bundled (the default bundled policy: the {DEFENSES[DEFAULT_POLICY]} learner), "
+                                 f"{', '.join(BUNDLED_POLICIES)} ({' and '.join(PER_MODE_POLICIES)}: the one trained "
+                                 "against mode:=), a policy file, or external (start none, wait for one)")
     expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")
-    horizon: int = arg(1000, "steps per episode")
+    horizon: int = arg(HORIZON, "steps per episode")
     record: str = arg("", "MCAP file to record to (default: runs/<time>-<env>-<mode>.mcap; off: no file)")
     domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
     connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
@@ -103,7 +107,7 @@ class NodeProcess:
         for key, value in params.items():
             cmd += ["-p", f"{key}:={value}"]
         self._log = open(self.log_path, "w")
-        self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
+        self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env,
                                      preexec_fn=_detach_but_die_with_parent)
 
     def exited(self) -> int | None:
@@ -128,11 +132,7 @@ class NodeProcess:
 class Orchestrator:
     def __init__(self, cfg: GraphConfig, log=print):
         self.cfg, self.log = cfg, log
-        if cfg.mode not in MODES:
-            raise GraphError(f"mode:= must be one of {', '.join(MODES)}, got {cfg.mode!r}")
-        self.attack = attack_for_mode(cfg.mode, cfg.attack)
-        if self.attack not in ATTACK_NAMES:
-            raise GraphError(f"attack:= must be one of {', '.join(ATTACK_NAMES)}, got {self.attack!r}")
+        self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
         if self.attack in WHITE_BOX and cfg.policy == "external":
             raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
                              "policy can be attacked with attack:=random")
@@ -155,16 +155,16 @@ class Orchestrator:
     # ----------------------------------------------------------------------------------- set-up
     def start_nodes(self, env: dict) -> None:
         cfg = self.cfg
-        common = {"env": cfg.env}
-        policy, expert = (_node_path(name, cfg.env, cfg.mode) for name in (cfg.policy, cfg.expert))
+        common = {"env": cfg.env, "mode": cfg.mode}
+        policy, expert = (_node_path(name) for name in (cfg.policy, cfg.expert))
         specs = {
-            "simulator": {**common, "horizon": cfg.horizon, "mode": cfg.mode,
+            "simulator": {**common, "horizon": cfg.horizon,
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
-            "attacker": {**common, "mode": cfg.mode, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
+            "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "expert": expert,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
-            "expert": {**common, "expert": expert},
+            "expert": {"env": cfg.env, "expert": expert},
         }
         if cfg.policy != "external":
             specs["policy"] = {**common, "policy": policy}
@@ -218,9 +218,10 @@ class Orchestrator:
         domain, domain_lock = allocate_domain(self.cfg.domain)
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
                "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
-               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
                "PYTHONUNBUFFERED": "1"}
-        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        ros_vars = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+        caller_env = {k: os.environ.get(k) for k in ros_vars}  # restored after the run (an in-process caller's)
+        os.environ.update({k: env[k] for k in ros_vars})
         self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
                  f"domain={domain} logs={self.log_dir}", file=sys.stderr)
         writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
@@ -256,11 +257,16 @@ class Orchestrator:
                              episodes_completed=len(recorder.episode_stats))
                 self.log(f"[run_graph] recorded {writer.steps} complete steps to {self.record}", file=sys.stderr)
             domain_lock.close()
+            for key, value in caller_env.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
         return self.summary(recorder, seconds, domain)
 
     def run_episode(self, ros, recorder: "StepRecorder", episode: int) -> None:
         recorder.start_episode(episode)
-        ros.reset(seed=self.cfg.seed + episode, episode=episode, check=self.check_nodes,
+        ros.reset(seed=episode_seed(self.cfg.seed, episode), episode=episode, check=self.check_nodes,
                   timeout=self.cfg.step_timeout)
         last_progress, progress = time.monotonic(), recorder.steps_written
         while not recorder.episode_done:
@@ -272,36 +278,27 @@ class Orchestrator:
                 raise GraphError(f"step {recorder.waiting_for()} made no progress for {self.cfg.step_timeout:.0f} s: "
                                  f"{recorder.missing_text()}" + (" (is the external policy still running?)"
                                                                  if self.cfg.policy == "external" else ""))
-        stats = recorder.episode_stats[-1]
-        self.log(f"episode {episode:3d}  return {stats['return']:9.1f}  expert loss {stats['expert_loss']:.4f}  "
-                 f"steps {stats['steps']:4d}  max|delta| {stats['max_delta']:.4f}", file=sys.stderr, flush=True)
+        self.log(recorder.episode_stats[-1].line(), file=sys.stderr, flush=True)
 
     def summary(self, recorder: "StepRecorder", seconds: float, domain: int) -> dict:
-        stats = recorder.episode_stats
-        returns = np.array([s["return"] for s in stats])
-        steps = sum(s["steps"] for s in stats)
+        figures = summarise_episodes(recorder.episode_stats)
         return {
             "mode": self.cfg.mode, "env": self.cfg.env, "attack": self.attack, "eps": self.eps,
-            "episodes": len(stats), "seed": self.cfg.seed, "policy": self.cfg.policy,
-            "mean_return": round(float(returns.mean()), 3), "std_return": round(float(returns.std()), 3),
-            "mean_expert_loss": round(sum(s["sq_loss"] for s in stats) / steps, 6),
-            "max_abs_delta": round(max(s["max_delta"] for s in stats), 6),
-            "steps": steps, "steps_per_s": round(steps / seconds, 1),
+            "episodes": figures.pop("episodes"), "seed": self.cfg.seed, "policy": self.cfg.policy, **figures,
+            "steps_per_s": round(figures["steps"] / seconds, 1),
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
         }
 
 
-def _node_path(name: str, env_id: str, mode: str) -> str:
-    """A bundled name as it is (a per-mode one as its file); a file as an absolute path, since the
-    nodes run in the project root."""
-    if name in MODE_KINDS:
-        return str(bundled_file(name, env_id, mode))
-    return name if name in (*BUNDLED_KINDS, "external") else str(Path(name).resolve())
+def _node_path(name: str) -> str:
+    """What a node is given for a policy: a bundled name as it is (the node resolves it, the per-mode
+    ones with its ``mode``), a file as an absolute path (a node need not share the caller's folder)."""
+    return name if name in (*BUNDLED_NAMES, "external") else str(Path(name).resolve())
 
 
-PRODUCERS = {P.STATE: "simulator", P.PHYSICS: "simulator", P.REWARD: "simulator", P.PERTURBATION: "attacker",
-             P.OBSERVATION: "attacker, or simulator when physical", P.ACTION: "policy",
+PRODUCERS = {P.CLOCK: "simulator", P.STATE: "simulator", P.PHYSICS: "simulator", P.REWARD: "simulator",
+             P.PERTURBATION: "attacker", P.OBSERVATION: "attacker, or simulator when physical", P.ACTION: "policy",
              P.EXPERT_ACTION: "expert"}
 
 
@@ -314,7 +311,7 @@ class StepRecorder:
         self.order: list[StepTag] = []
         self.clock: dict[int, bytes] = {}
         self.stamp: dict[StepTag, int] = {}
-        self.episode_stats: list[dict] = []
+        self.episode_stats: list[EpisodeStats] = []  # the finished episodes
         self.steps_written = 0
         self.episode = -1
         self.frames: dict[StepTag, tuple[int, bytes]] = {}  # camera frames whose step is not written yet
@@ -322,8 +319,8 @@ class StepRecorder:
         self.frames_written = 0
 
     def start_episode(self, episode: int) -> None:
-        self.episode, self.episode_done, self.episode_steps = episode, False, 0
-        self.current = {"return": 0.0, "sq_loss": 0.0, "steps": 0, "max_delta": 0.0}
+        self.episode, self.episode_done = episode, False
+        self.current = EpisodeStats(episode)
 
     def on_frame(self, raw: bytes) -> None:
         """A camera frame goes into the log right after its step (log times stay in sim-time order)."""
@@ -353,9 +350,12 @@ class StepRecorder:
                 self.stamp[tag] = stamp
         self.flush()
 
+    def arrived(self, tag: StepTag) -> set[str]:
+        """The step topics of ``tag`` heard so far (its ``/clock`` joins it by the state's stamp)."""
+        return {*self.pending[tag], *([P.CLOCK] if self.stamp.get(tag) in self.clock else [])}
+
     def complete(self, tag: StepTag) -> bool:
-        msgs = self.pending[tag]
-        return len(msgs) == len(P.STEP_TOPICS) - 1 and self.stamp.get(tag) in self.clock
+        return not missing_topics(self.arrived(tag))
 
     def flush(self) -> None:
         from rclpy.serialization import deserialize_message
@@ -375,27 +375,20 @@ class StepRecorder:
             action = np.array(deserialize_message(msgs[P.ACTION], JointState).effort)
             expert = np.array(deserialize_message(msgs[P.EXPERT_ACTION], JointState).effort)
             delta = np.array(deserialize_message(msgs[P.PERTURBATION], JointState).position)
-            c = self.current
-            c["return"] += reward
-            c["sq_loss"] += float(((action - expert) ** 2).sum())
-            c["max_delta"] = max(c["max_delta"], float(np.abs(delta).max(initial=0.0)))
-            c["steps"] += 1
+            self.current.add(reward, action, expert, delta, done=bool(terminated or truncated))
             self.steps_written += 1
-            self.episode_steps += 1
-            if terminated or truncated:
-                c["expert_loss"] = c["sq_loss"] / c["steps"]
-                self.episode_stats.append(c)
+            if self.current.done:
+                self.episode_stats.append(self.current)
                 self.episode_done = True
 
     def waiting_for(self) -> str:
-        return str(self.order[0]) if self.order else f"{self.episode}/{self.episode_steps}"
+        return str(self.order[0]) if self.order else f"{self.episode}/{self.current.steps}"
 
     def missing_text(self) -> str:
         if not self.order:
             return f"no {P.STATE} from the simulator"
-        have = self.pending[self.order[0]]
-        missing = [f"{t} ({PRODUCERS[t]})" for t in P.STEP_TOPICS if t != P.CLOCK and t not in have]
-        return "waiting for " + ", ".join(missing) if missing else "waiting for /clock (simulator)"
+        missing = missing_topics(self.arrived(self.order[0]))
+        return "waiting for " + ", ".join(f"{t} ({PRODUCERS[t]})" for t in missing)
 
 
 class GraphClient:
@@ -410,7 +403,7 @@ class GraphClient:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import String
 
-        from nodes.common import READY_QOS, STEP_QOS
+        from aril_ros_nodes.common import READY_QOS, STEP_QOS
 
         self._rclpy = rclpy
         # no rclpy signal handlers: Ctrl-C must reach the orchestrator's own handler
@@ -442,7 +435,7 @@ class GraphClient:
         return [topic for topic, sub in self.subscriptions.items() if sub.get_publisher_count() < 1]
 
     def reset(self, seed: int, episode: int, check, timeout: float) -> None:
-        from nodes.common import param_msg
+        from aril_ros_nodes.common import param_msg
 
         request = self._request_type()
         request.parameters = [param_msg("seed", seed), param_msg("episode", episode)]

@@ -1,7 +1,9 @@
 """Policy node: answers each ``observation`` with an ``action`` carrying the same header.
 
-Parameters: ``env``, ``policy`` (a bundled name such as ``expert`` or a policy file path). Any node
-that does the same on these two topics can replace it (``run_graph.py policy:=external``).
+Parameters: ``env``, ``policy`` (a bundled name such as ``expert`` or a policy file path) and ``mode``
+(sensory | physical: which of the per-mode bundled learners ``dr`` and ``aril`` to load; unused for
+other names and files). Any node that does the same on these two topics can replace it
+(``run_graph.py policy:=external``).
 """
 from __future__ import annotations
 
@@ -12,8 +14,9 @@ from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
 from aril_ros.envs import layout_of
-from aril_ros.experts import resolve_policy
-from nodes.common import STEP_QOS, ReadyAnnouncer, declared, joint_state, main_for, publishers, subscribers
+from aril_ros.policy import resolve_policy
+from aril_ros.registry import DEFAULT_ENV
+from aril_ros_nodes.common import STEP_QOS, ReadyAnnouncer, declared, joint_state, main_for, publishers, subscribers
 
 
 class PolicyNode(Node):
@@ -26,8 +29,8 @@ class PolicyNode(Node):
                  out_subscribers=2):
         super().__init__(name)
         torch.set_num_threads(1)  # one observation at a time: more threads only contend for the cores
-        env_id = declared(self, "env", "HalfCheetah-v5")
-        self.policy = resolve_policy(declared(self, name, default_policy), env_id)
+        env_id = declared(self, "env", DEFAULT_ENV)
+        self.policy = resolve_policy(declared(self, name, default_policy), env_id, declared(self, "mode", "") or None)
         self.names = layout_of(env_id).action_names
         self.pub = self.create_publisher(JointState, out_topic, STEP_QOS)
         sub = self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)

@@ -1,5 +1,6 @@
 """A policy reached over ROS: any node that answers ``observation`` with ``action`` (the documented
-policy contract), used as a black-box victim, e.g. for ``aril train-adversary victim:=ros``.
+policy contract), used as a black-box victim, e.g. for ``aril train-adversary victim:=ros``: the
+``aril_ros.victims`` entry point ``ros`` is :func:`connect`.
 
 ``RemotePolicy.act(batch)`` publishes one ``observation`` per row, tagged ``"<batch>/<row>"``, and
 waits for every tagged ``action``; the policy node needs nothing but the contract in msgs_doc/.
@@ -18,7 +19,7 @@ from sensor_msgs.msg import JointState
 from aril_ros import protocol as P
 from aril_ros.envs import layout_of
 from aril_ros.protocol import StepTag
-from nodes.common import STEP_QOS, joint_state, step_header
+from aril_ros_nodes.common import STEP_QOS, joint_state, step_header
 
 
 class RemotePolicyError(ConnectionError):
@@ -73,3 +74,9 @@ class RemotePolicy:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+def connect(env_id: str) -> RemotePolicy:
+    """The ``aril_ros.victims`` entry point ``ros``: the policy node answering in the current
+    ``ROS_DOMAIN_ID``, as a victim with ``act``, ``meta.provenance`` and ``close``."""
+    return RemotePolicy(env_id)

@@ -4,6 +4,9 @@
 
 Messages go out byte for byte as recorded, with the recorded QoS (reliable, keep all), in the
 current ``ROS_DOMAIN_ID``; ``/clock`` is among them, so nodes with ``use_sim_time`` follow along.
+
+:data:`COMMAND` is the ``aril_ros.commands`` entry point ``replay``. ``aril --help`` imports this
+module to list it, so rclpy is imported only when a replay runs.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import time
 from dataclasses import dataclass
 
 from aril_ros.args import arg
+from aril_ros.cli import Command
 from aril_ros.mcap_log import read_run
 
 
@@ -32,7 +36,7 @@ def replay(cfg: ReplayConfig, log=print) -> int:
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import CompressedImage, JointState
 
-    from nodes.common import STEP_QOS
+    from aril_ros_nodes.common import STEP_QOS
 
     read_run(cfg.file, allow_interrupted=True)  # refuse foreign or cut-short files before publishing
     classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock,
@@ -65,3 +69,7 @@ def replay(cfg: ReplayConfig, log=print) -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return count
+
+
+COMMAND = Command(config=ReplayConfig, run=replay,
+                  summary="Republish a run log's topics paced by sim time (like ros2 bag play).")

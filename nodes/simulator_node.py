@@ -25,15 +25,15 @@ from sensor_msgs.msg import JointState
 from aril_ros import protocol as P
 from aril_ros.envs import HORIZON, MujocoSim
 from aril_ros.protocol import StepTag, stamp_ns
-
-from nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for, publishers,
-                          request_params, step_header, subscribers)
+from aril_ros.registry import DEFAULT_ENV
+from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
+                                   publishers, request_params, step_header, subscribers)
 
 
 class SimulatorNode(Node):
     def __init__(self):
         super().__init__("simulator")
-        self.sim = MujocoSim(declared(self, "env", "HalfCheetah-v5"), declared(self, "horizon", HORIZON))
+        self.sim = MujocoSim(declared(self, "env", DEFAULT_ENV), declared(self, "horizon", HORIZON))
         self.obs_names = list(self.sim.layout.names)
         self.act_dim = self.sim.layout.act_dim
         self.tag: StepTag | None = None  # the step waiting for its action; None between episodes
