@@ -1,37 +1,36 @@
-#!/usr/bin/env python3
 """Graph throughput: steps/s of the ROS 2 graph per mode, with and without recording, beside the
 in-process engine and a bare two-process rclpy ping-pong (the practical limit of one hop).
 
-    .venv/bin/python benchmarks/bench_graph.py env:=HalfCheetah-v5 steps:=2000
+    .venv/bin/python -m aril_ros_nodes.bench_graph env:=HalfCheetah-v5 steps:=2000
 
-The graph figure is ``steps_per_s`` of ``run_graph.py`` (episodes only, start-up excluded); the
-engine runs the same policy, expert, attack and episode length with one env (``n_envs:=1``, like
-the graph) and with 32.
+The graph figure is ``steps_per_s`` of the orchestrator behind ``run_graph.py`` (episodes only,
+start-up excluded); the engine runs the same policy, expert, attack and episode length with one env
+(``n_envs:=1``, like the graph) and with 32. The last line is the figures as JSON (what ``aril report``
+reads: this module is the ``aril_ros.benchmarks`` entry point ``graph``).
 """
 import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from aril_ros.args import arg, parse_args, usage  # noqa: E402
-from aril_ros.attacks import make_attack  # noqa: E402
-from aril_ros.envs import layout_of  # noqa: E402
-from aril_ros.experts import resolve_policy  # noqa: E402
-from aril_ros.rollout import RolloutEngine  # noqa: E402
-from nodes.orchestrator import allocate_domain  # noqa: E402
+from aril_ros.args import arg, parse_args, usage
+from aril_ros.attacks import make_attack
+from aril_ros.envs import layout_of
+from aril_ros.policy import resolve_policy
+from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
+from aril_ros.rollout import RolloutEngine
+from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
 
 PONG = r"""
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from sensor_msgs.msg import JointState
-from nodes.common import STEP_QOS
+from aril_ros_nodes.common import STEP_QOS
 rclpy.init()
 node = rclpy.create_node("pong")
 pub = node.create_publisher(JointState, "pong", STEP_QOS)
@@ -48,27 +47,28 @@ except (KeyboardInterrupt, ExternalShutdownException):
 
 @dataclass
 class GraphBenchConfig:
-    env: str = arg("HalfCheetah-v5", "gymnasium MuJoCo env id")
+    """Arguments of ``python -m aril_ros_nodes.bench_graph``."""
+
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)")
     eps: float = arg(0.05, "attack budget")
     seconds: float = arg(5.0, "length of the ping-pong measurement")
 
 
 def graph_steps_per_s(cfg, mode: str, record: bool) -> float:
-    attack = "none" if mode == "clean" else "random"
-    out = subprocess.run(
-        [sys.executable, str(ROOT / "run_graph.py"), f"mode:={mode}", f"env:={cfg.env}", f"attack:={attack}",
-         f"eps:={cfg.eps}", "episodes:=2", f"horizon:={cfg.steps // 2}",
-         f"record:={'/tmp/aril_bench_graph.mcap' if record else 'off'}"],
-        capture_output=True, text=True, cwd=ROOT)
-    if out.returncode != 0:
-        raise SystemExit(f"run_graph failed: {out.stderr}")
-    return json.loads(out.stdout.strip().splitlines()[-1])["steps_per_s"]
+    """The orchestrator's ``steps_per_s`` for two episodes of ``steps / 2`` (the default policy and expert)."""
+    log = Path(tempfile.gettempdir()) / "aril_bench_graph.mcap"
+    graph = GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
+                        horizon=cfg.steps // 2, record=str(log) if record else "off")
+    try:
+        return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
+    except (ValueError, GraphError) as err:
+        raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
 
 
 def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
     expert = resolve_policy("expert", cfg.env)
-    attack = make_attack("none" if mode == "clean" else "random", layout_of(cfg.env), cfg.eps)
+    attack = make_attack(attack_for_mode(mode), layout_of(cfg.env), cfg.eps)
     engine = RolloutEngine(cfg.env, expert, expert, attack, mode, n_envs=n_envs, horizon=cfg.steps // 2)
     started = time.perf_counter()
     traj = engine.rollout(max(2, n_envs), seed=0)
@@ -80,11 +80,10 @@ def ping_pong_per_s(seconds: float) -> float:
     from rclpy.experimental import EventsExecutor
     from sensor_msgs.msg import JointState
 
-    from nodes.common import STEP_QOS
+    from aril_ros_nodes.common import STEP_QOS
 
     domain, lock = allocate_domain("auto")
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-           "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     pong = subprocess.Popen([sys.executable, "-c", PONG], env=env)
     rclpy.init(args=[])
@@ -117,14 +116,14 @@ def ping_pong_per_s(seconds: float) -> float:
 
 def main(argv):
     if "--help" in argv or "-h" in argv:
-        print(usage(GraphBenchConfig, "benchmarks/bench_graph.py", __doc__.strip().splitlines()[0]))
+        print(usage(GraphBenchConfig, "python -m aril_ros_nodes.bench_graph", __doc__.strip().splitlines()[0]))
         return
     cfg = parse_args(GraphBenchConfig, argv)
     import torch
 
     torch.set_num_threads(1)
     rows = {}
-    for mode in ("clean", "sensory", "physical"):
+    for mode in MODES:
         rows[mode] = {
             "graph": graph_steps_per_s(cfg, mode, record=False),
             "graph+record": graph_steps_per_s(cfg, mode, record=True),

@@ -1,0 +1,30 @@
+"""A DAgger round through the ROS 2 graph: the ``aril_ros.collectors`` entry point ``graph``.
+
+``aril train-learner source:=graph`` hands :func:`collect_round` a :class:`aril_ros.dagger.RoundSpec`;
+the round runs here, in the caller's process, through the :class:`Orchestrator` (the nodes are its
+child processes, as with ``run_graph.py``), and its run log is what the library reads back.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
+
+
+def _to_stderr(*args, **kwargs) -> None:
+    print(*args, **{**kwargs, "file": sys.stderr})
+
+
+def collect_round(spec, log=_to_stderr) -> Path:
+    """Run the round ``spec`` (a :class:`aril_ros.dagger.RoundSpec`) through the graph, recorded to
+    ``spec.record``; return that path. The orchestrator's progress goes to ``log`` (stderr by
+    default); a failed run raises a RuntimeError naming the round's log and the cause."""
+    cfg = GraphConfig(env=spec.env, mode=spec.mode, attack=spec.attack, eps=spec.eps, policy=spec.policy,
+                      expert=spec.expert, attack_file=spec.attack_file, episodes=spec.episodes, seed=spec.seed,
+                      record=str(spec.record))
+    try:
+        Orchestrator(cfg, log=log).run()
+    except (ValueError, GraphError) as err:  # bad files or settings, or a node that died or stalled
+        raise RuntimeError(f"the graph run for {Path(spec.record).name} ({spec.record}) failed: {err}") from err
+    return Path(spec.record)
