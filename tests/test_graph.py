@@ -1,6 +1,8 @@
-"""Real ROS 2 graphs: separate processes, real DDS, one isolated domain per run."""
+"""Real ROS 2 graphs: separate processes, real DDS, one isolated domain per run. The nodes run from the
+installed package (aril_ros_nodes), never from the checkout's folder."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -17,7 +19,7 @@ from aril_ros.envs import MujocoSim, layout_of
 from aril_ros.mcap_log import RunLogError, read_run, recover
 from aril_ros.policy import load_policy, save_policy
 from aril_ros.rollout import RolloutEngine
-from nodes.orchestrator import allocate_domain
+from aril_ros_nodes.orchestrator import allocate_domain
 from tests.conftest import random_policy
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -196,7 +198,7 @@ def test_replay_republishes_the_log_byte_for_byte(recorded):
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
-    from nodes.common import STEP_QOS
+    from aril_ros_nodes.common import STEP_QOS
 
     domain = free_domain()
     os.environ["ROS_DOMAIN_ID"] = str(domain)
@@ -227,6 +229,64 @@ def test_replay_republishes_the_log_byte_for_byte(recorded):
     with open(recorded, "rb") as f:
         recorded_states = [m.data for _, c, m in make_reader(f).iter_messages(topics=["/sim/state"])]
     assert got == recorded_states
+
+
+def test_the_ros_side_registers_its_command_collector_victim_and_benchmark(capsys):
+    from aril_ros import plugins
+    from aril_ros.cli import main
+    from aril_ros_nodes import collect, remote_policy, replay
+
+    assert plugins.load("aril_ros.commands", "replay") is replay.COMMAND
+    assert replay.COMMAND.config is replay.ReplayConfig and replay.COMMAND.run is replay.replay
+    assert plugins.load("aril_ros.collectors", "graph") is collect.collect_round
+    assert plugins.load("aril_ros.victims", "ros") is remote_policy.connect
+    assert main(["replay", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: aril replay") and "file:=" in out and "rate:=" in out
+    bench = subprocess.run([sys.executable, "-m", plugins.value("aril_ros.benchmarks", "graph"), "--help"],
+                           capture_output=True, text=True, timeout=120)
+    assert bench.returncode == 0 and "python -m aril_ros_nodes.bench_graph" in bench.stdout, bench.stderr
+
+
+def child_processes() -> list[int]:
+    """PIDs whose parent is this (test) process."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == os.getpid():
+                found.append(int(entry.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+def test_a_dagger_round_runs_through_the_graph_in_process(tmp_path):
+    """train-learner source:=graph: the collector runs the round in the caller's process (no script by
+    path) and leaves its log, which holds the engine's trajectory; a failed round names its log."""
+    from aril_ros import plugins
+    from aril_ros.dagger import RoundSpec
+
+    env_id = "Hopper-v5"  # a random policy falls within 20 steps: the default horizon costs nothing
+    policy, expert = policy_files(tmp_path, env_id)
+    domain_before = os.environ["ROS_DOMAIN_ID"]
+    spec = RoundSpec(env=env_id, mode="physical", attack="random", eps=0.05, policy=str(policy), expert=str(expert),
+                     attack_file="", episodes=2, seed=7, record=tmp_path / "round-1.mcap")
+    assert plugins.load("aril_ros.collectors", "graph")(spec) == spec.record
+    assert child_processes() == [] and os.environ["ROS_DOMAIN_ID"] == domain_before
+    run = read_run(spec.record)
+    victim, labeller = load_policy(policy), load_policy(expert)
+    traj = RolloutEngine(env_id, victim, labeller, make_attack("random", layout_of(env_id), 0.05), "physical",
+                         n_envs=2).rollout(2, seed=7)
+    assert run.metadata["seed"] == 7 and run.metadata["episodes"] == 2 and run.end["episodes_completed"] == 2
+    for e in range(2):
+        rows = run.episodes == e
+        assert rows.sum() == traj.length[e] < 100
+        for name in COMPARED:
+            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
+                                          err_msg=f"{name}, episode {e}")
+    broken = dataclasses.replace(spec, policy=str(tmp_path / "missing.pt"), record=tmp_path / "round-2.mcap")
+    with pytest.raises(RuntimeError, match=r"round-2\.mcap.*missing\.pt: no such policy file"):
+        plugins.load("aril_ros.collectors", "graph")(broken)
 
 
 EXTERNAL_POLICY = r"""
@@ -332,11 +392,12 @@ def test_set_state_validates_its_request(tmp_path):
     from rcl_interfaces.srv import SetParametersAtomically
     from rclpy.executors import SingleThreadedExecutor
 
-    from nodes.common import param_msg
+    from aril_ros_nodes.common import param_msg
 
     domain = free_domain()
-    sim = subprocess.Popen([sys.executable, "-m", "nodes.simulator_node", "--ros-args", "-p", "env:=Swimmer-v5"],
-                           env=ros_env(domain), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sim = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.simulator_node", "--ros-args", "-p",
+                            "env:=Swimmer-v5"], env=ros_env(domain), cwd=tmp_path,  # any folder: it is installed
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     context = rclpy.Context()
     rclpy.init(args=[], context=context)
@@ -422,18 +483,18 @@ def test_aril_a_trains_against_a_policy_node_over_ros(tmp_path):
     """Black box: the adversary only sees the actions a running policy node publishes."""
     policy, expert = policy_files(tmp_path, "Swimmer-v5")
     domain = free_domain()
-    node = subprocess.Popen([sys.executable, "-m", "nodes.policy_node", "--ros-args", "-p", "env:=Swimmer-v5",
-                             "-p", f"policy:={policy}"], env=ros_env(domain), cwd=ROOT,
+    node = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.policy_node", "--ros-args", "-p",
+                             "env:=Swimmer-v5", "-p", f"policy:={policy}"], env=ros_env(domain), cwd=tmp_path,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         out = subprocess.run([sys.executable, "-m", "aril_ros", "train-adversary", "env:=Swimmer-v5", "victim:=ros",
                               f"expert:={expert}", "eps:=0.1", "steps:=1024", "n_envs:=8", "rollout:=128",
                               f"out:={tmp_path / 'adv.pt'}"], env=ros_env(domain), cwd=ROOT, capture_output=True,
                              text=True, timeout=120)
-        from nodes.remote_policy import RemotePolicy
+        from aril_ros import plugins
 
         os.environ["ROS_DOMAIN_ID"] = str(domain)
-        remote = RemotePolicy("Swimmer-v5")
+        remote = plugins.load("aril_ros.victims", "ros")("Swimmer-v5")  # what victim:=ros connects to
         obs = np.random.default_rng(0).normal(size=(10, 8))
         try:
             np.testing.assert_array_equal(remote.act(obs), load_policy(policy).act(obs))  # the node's, exactly
