@@ -1,30 +1,44 @@
 """The paper's figures (Tables 1 and 2, MuJoCo v2 envs), keyed like the report's rows."""
+from ..registry import PAPER_ENVS
 
-PAPER_ENV = {"HalfCheetah-v5": "HalfCheetah-v2", "Ant-v5": "Ant-v2", "Swimmer-v5": "Swimmer-v2"}
+
+def _per_env(*figures) -> dict:
+    """Figures given in the order of ``registry.PAPER_ENVS`` (HalfCheetah, Ant, Swimmer), keyed by our env ids."""
+    return dict(zip(PAPER_ENVS, figures))
+
+
+PAPER_ENV = _per_env("HalfCheetah-v2", "Ant-v2", "Swimmer-v2")
+"""The env each of ours stands in for."""
+PAPER_OBS_DIM = _per_env(17, 111, 8)
+"""Observation sizes of the paper's -v2 envs."""
+TABLE_ROWS = (("dagger", "none"), ("dagger", "fgsm"), ("dagger", "fgsm_k"), ("dagger", "aril_a"),
+              ("gail", "worst"), ("dr", "worst"), ("dart", "worst"), ("aril", "worst"))
+"""The rows of the paper's Tables 1 and 2: DAgger clean and under each attack (Adversary), then each
+defense under its worst attack (Robust IL)."""
 # The paper's Tables 1 and 2 (v2 envs): return and drop from its clean DAgger; rows it does not report are absent.
 PAPER = {
     "sensory": {
-        ("dagger", "none"): {"Ant-v5": (1245, 0.0), "HalfCheetah-v5": (3276, 0.0), "Swimmer-v5": (81, 0.0)},
-        ("dagger", "fgsm"): {"Ant-v5": (945, -24.1), "HalfCheetah-v5": (2336, -28.7), "Swimmer-v5": (66, -18.5)},
-        ("dagger", "fgsm_k"): {"Ant-v5": (884, -28.9), "HalfCheetah-v5": (1973, -39.8), "Swimmer-v5": (57, -29.6)},
-        ("dagger", "aril_a"): {"Ant-v5": (607, -51.2), "HalfCheetah-v5": (830, -74.7), "Swimmer-v5": (38, -53.1)},
-        ("gail", "worst"): {"Ant-v5": (638, -48.8), "HalfCheetah-v5": (1037, -68.3), "Swimmer-v5": (42, -48.1)},
-        ("dr", "worst"): {"Ant-v5": (679, -45.5), "HalfCheetah-v5": (1372, -58.1), "Swimmer-v5": (56, -30.9)},
-        ("dart", "worst"): {"Ant-v5": (779, -37.4), "HalfCheetah-v5": (1832, -44.1), "Swimmer-v5": (49, -39.5)},
-        ("aril", "worst"): {"Ant-v5": (965, -22.5), "HalfCheetah-v5": (2974, -9.2), "Swimmer-v5": (72, -11.1)},
+        ("dagger", "none"): _per_env((3276, 0.0), (1245, 0.0), (81, 0.0)),
+        ("dagger", "fgsm"): _per_env((2336, -28.7), (945, -24.1), (66, -18.5)),
+        ("dagger", "fgsm_k"): _per_env((1973, -39.8), (884, -28.9), (57, -29.6)),
+        ("dagger", "aril_a"): _per_env((830, -74.7), (607, -51.2), (38, -53.1)),
+        ("gail", "worst"): _per_env((1037, -68.3), (638, -48.8), (42, -48.1)),
+        ("dr", "worst"): _per_env((1372, -58.1), (679, -45.5), (56, -30.9)),
+        ("dart", "worst"): _per_env((1832, -44.1), (779, -37.4), (49, -39.5)),
+        ("aril", "worst"): _per_env((2974, -9.2), (965, -22.5), (72, -11.1)),
     },
     "physical": {
-        ("dagger", "none"): {"Ant-v5": (1245, 0.0), "HalfCheetah-v5": (3276, 0.0), "Swimmer-v5": (81, 0.0)},
-        ("dagger", "fgsm"): {"Ant-v5": (885, -28.9), "HalfCheetah-v5": (2100, -35.9), "Swimmer-v5": (61, -24.7)},
-        ("dagger", "aril_a"): {"Ant-v5": (158, -87.3), "HalfCheetah-v5": (249, -92.5), "Swimmer-v5": (16, -80.2)},
-        ("dart", "worst"): {"Ant-v5": (581, -53.3), "HalfCheetah-v5": (1078, -67.1), "Swimmer-v5": (27, -66.7)},
-        ("aril", "worst"): {"Ant-v5": (903, -27.5), "HalfCheetah-v5": (2183, -33.4), "Swimmer-v5": (56, -30.1)},
+        ("dagger", "none"): _per_env((3276, 0.0), (1245, 0.0), (81, 0.0)),
+        ("dagger", "fgsm"): _per_env((2100, -35.9), (885, -28.9), (61, -24.7)),
+        ("dagger", "aril_a"): _per_env((249, -92.5), (158, -87.3), (16, -80.2)),
+        ("dart", "worst"): _per_env((1078, -67.1), (581, -53.3), (27, -66.7)),
+        ("aril", "worst"): _per_env((2183, -33.4), (903, -27.5), (56, -30.1)),
     },
 }
+PAPER_CLEAN = {env: figure[0] for env, figure in PAPER["sensory"][("dagger", "none")].items()}
+"""The paper's clean DAgger return per env (the reference of its drops)."""
 PAPER_OVERALL = {"sensory": {("dagger", "none"): 0.0, ("dagger", "fgsm"): -23.7, ("dagger", "fgsm_k"): -32.7,
                              ("dagger", "aril_a"): -59.7, ("gail", "worst"): -55.1, ("dr", "worst"): -44.8,
                              ("dart", "worst"): -40.3, ("aril", "worst"): -14.3},
                  "physical": {("dagger", "none"): 0.0, ("dagger", "fgsm"): -29.8, ("dagger", "aril_a"): -86.7,
                               ("dart", "worst"): -62.4, ("aril", "worst"): -30.3}}
-TABLE_ROWS = (("dagger", "none"), ("dagger", "fgsm"), ("dagger", "fgsm_k"), ("dagger", "aril_a"),
-              ("gail", "worst"), ("dr", "worst"), ("dart", "worst"), ("aril", "worst"))

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .envs import layout_of
-from .experiments import ROW_NAMES
-from .paper import PAPER_OVERALL, TABLE_ROWS
-
-NAMES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL"}
-PAPER_CLEAN = {"HalfCheetah-v5": 3276, "Ant-v5": 1245, "Swimmer-v5": 81}
-PAPER_OBS_DIM = {"HalfCheetah-v5": 17, "Ant-v5": 111, "Swimmer-v5": 8}  # the -v2 envs the paper used
+from ..envs import layout_of
+from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES
+from .paper import PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
+from .stats import worst_attack
+from .tables import DAGGER_ATTACKS
 
 
 def _drop(cell: dict | None, reference: dict | None) -> float | None:
@@ -30,28 +28,27 @@ def comparison(payload: dict, cells: dict) -> list[str]:
         strongest, weaker, most_robust, aril_rank = [], [], [], []
         for env, row in by_env.items():
             clean = row.get(("dagger", "none"))
-            attacks = {a: _drop(row.get(("dagger", a)), clean) for a in ("fgsm", "fgsm_k", "aril_a")}
+            attacks = {a: _drop(row.get(("dagger", a)), clean) for a in DAGGER_ATTACKS}
             attacks = {a: d for a, d in attacks.items() if d is not None}
             if "aril_a" in attacks and len(attacks) > 1:
                 best_other = min((a for a in attacks if a != "aril_a"), key=lambda a: attacks[a])
                 target = strongest if attacks["aril_a"] <= attacks[best_other] else weaker
-                target.append(f"{env} ({attacks['aril_a']:+.1f}% vs {ROW_NAMES[best_other]} "
+                target.append(f"{env} ({attacks['aril_a']:+.1f}% vs {ATTACKS[best_other]} "
                               f"{attacks[best_other]:+.1f}%)")
-            defenses = {d: row.get((d, "worst")) for d in ("gail", "dr", "dart", "aril")}
+            defenses = {d: row.get((d, "worst")) for d in PAPER_DEFENSES if d != "dagger"}
             defenses = {d: c for d, c in defenses.items() if c}
             if clean:  # DAgger's own worst case is the undefended baseline
-                worst_dagger = min((row.get(("dagger", a)) for a in ("fgsm", "fgsm_k", "aril_a")
-                                    if row.get(("dagger", a))), key=lambda c: c["mean"], default=None)
-                if worst_dagger:
-                    defenses["dagger"] = worst_dagger
+                worst = worst_attack({a: row.get(("dagger", a)) for a in DAGGER_ATTACKS}, among=DAGGER_ATTACKS)
+                if worst:
+                    defenses["dagger"] = row[("dagger", worst)]
             ranked = sorted(defenses, key=lambda d: -defenses[d]["mean"])
             if ranked:
-                most_robust.append(f"{env}: {NAMES[ranked[0]]} ({defenses[ranked[0]]['mean']:.0f})")
+                most_robust.append(f"{env}: {DEFENSES[ranked[0]]} ({defenses[ranked[0]]['mean']:.0f})")
             if "aril" in ranked:
                 aril_rank.append(f"{env}: {ranked.index('aril') + 1} of {len(ranked)}")
         overall = payload["overall_drop"].get(mode, {})
         aril_overall = overall.get("aril worst")
-        side_by_side = [f"{ROW_NAMES[a] if d == 'dagger' else NAMES[d]} {overall[f'{d} {a}']:+.1f}% "
+        side_by_side = [f"{ATTACKS[a] if d == 'dagger' else DEFENSES[d]} {overall[f'{d} {a}']:+.1f}% "
                         f"({'—' if (p := PAPER_OVERALL[mode].get((d, a))) is None else f'{p:+.1f}%'})"
                         for d, a in TABLE_ROWS[1:] if overall.get(f"{d} {a}") is not None]
         lines += [f"**{mode.capitalize()} attacks.** ARIL-A is the strongest attack on DAgger in {_list(strongest)}; "
@@ -59,7 +56,7 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                   f"Most robust defense under its worst attack: {_list(most_robust)}. ARIL's rank: {_list(aril_rank)} "
                   f"(the paper: first everywhere). ARIL's overall drop: "
                   f"{'—' if aril_overall is None else f'{aril_overall:+.1f}%'} "
-                  f"(the paper: {'-14.3%' if mode == 'sensory' else '-30.3%'}). Overall drops, ours (the paper's): "
+                  f"(the paper: {PAPER_OVERALL[mode][('aril', 'worst')]:+.1f}%). Overall drops, ours (the paper's): "
                   f"{_list(side_by_side)}.", ""]
     envs = payload["envs"]
     clean = {env: next(iter(cells.values()))[env].get(("dagger", "none")) for env in envs}
@@ -103,13 +100,14 @@ def performance(benchmarks: dict) -> list[str]:
     if not benchmarks:
         return ["Not run (`perf:=false`)."]
     lines = []
-    engine, graph, adversary = benchmarks.get("engine", {}), benchmarks.get("graph", {}), benchmarks.get("adversary", {})
+    engine, graph, adversary = (benchmarks.get(name, {}) for name in ("engine", "graph", "adversary"))
     raw = engine.get("raw env.step")
     if raw:
-        lines += [f"HalfCheetah-v5, steps/s and ratio to raw MuJoCo (`env.step`, {raw:.0f} steps/s), one torch thread:",
+        lines += [f"{engine.get('env')}, steps/s and ratio to raw MuJoCo (`env.step`, {raw:.0f} steps/s), "
+                  "one torch thread:",
                   "", "| mode | in-process engine (32 envs) | vs raw | ROS graph (5 processes) | vs raw | "
                       "graph + MCAP record | vs raw |", "|---|---|---|---|---|---|---|"]
-        for mode in ("clean", "sensory", "physical"):
+        for mode in MODES:
             e, g = engine.get(f"engine {mode}"), graph.get(mode, {})
             row = [e, g.get("graph"), g.get("graph+record")]
             lines.append(f"| {mode} | " + " | ".join("—" if v is None else f"{v:.0f} | {v / raw:.2f}" for v in row)
@@ -118,8 +116,8 @@ def performance(benchmarks: dict) -> list[str]:
                       "round trips/s (the graph's ceiling).", ""]
     if adversary and "error" not in adversary:
         base = adversary.get("SB3 PPO (1 env)")
-        lines += ["Adversary training, env steps/s (HalfCheetah-v5, one torch thread), ratio to stable-baselines3 PPO "
-                  "on one env:", "", "| trainer | steps/s | ratio |", "|---|---|---|"]
+        lines += [f"Adversary training, env steps/s ({adversary.get('env')}, one torch thread), ratio to "
+                  "stable-baselines3 PPO on one env:", "", "| trainer | steps/s | ratio |", "|---|---|---|"]
         lines += [f"| {k} | {v:.0f} | {v / base:.2f}x |" for k, v in adversary.items()
                   if isinstance(v, float) and base]
         lines.append("")
@@ -156,7 +154,8 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
         "- Each cell: mean ± the half-width of a 95% Student-t interval (over the training seeds' means when there "
         "are several, else over the episodes); in brackets the drop from clean DAgger and, for a defense, the attack "
         "that hurt it most among random, FGSM, FGSM^k (10 steps) and an ARIL-A trained against that very defense.",
-        "- eps per env and mode: the calibrated one (`results/eps_calibration.json`).", "",
+        "- eps per env and mode: the calibrated one (`aril_ros/data/eps_calibration.json`, made by "
+        "`aril calibrate-eps`).", "",
     ]
     for mode in tables:
         number = 1 if mode == "sensory" else 2

@@ -1,0 +1,129 @@
+"""The files a report evaluates: per (defense, env, mode, training seed) a policy and the ARIL-A
+trained against it. Seed 0 is the bundled policy and its bundled adversary; another seed is trained
+here by the bundled policy's own settings (its provenance) with ``seed`` changed."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .. import dagger, gail
+from ..adversary import AdversaryConfig, load_adversary, train_adversary
+from ..args import command_line
+from ..policy import load_weights
+from ..provenance import settings_of
+from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file
+from .jobs import FAILURES, in_processes
+
+
+def trained_for(adversary: Path, eps: float) -> bool:
+    """Whether ``adversary`` exists and was trained for ``eps``."""
+    return adversary.exists() and load_adversary(adversary).eps == eps
+
+
+def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
+                    retrain: bool, log) -> Path:
+    """``adversary``, trained against ``victim`` first when it is missing, of another eps, or ``retrain``."""
+    if retrain or not trained_for(adversary, eps):
+        train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
+                                        out=str(adversary)), log=log)
+    return adversary
+
+
+def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir: Path) -> Path:
+    """Seed ``seed`` of a defense: the bundled policy's own settings with ``seed`` (and where it goes) changed."""
+    provenance = load_weights(bundled_file(defense, env, mode))[0]["provenance"]
+    if defense == "gail":
+        # GAIL keeps its best policy so far in its out file while it trains: train beside ``out`` so that an
+        # existing ``out`` means a finished training (an interrupted report resumes from it)
+        partial = out.with_name(f"{out.stem}.partial.pt")
+        cfg = settings_of(provenance, gail.GailConfig, seed=seed, out=str(partial))
+        print(f"[report] training {out.stem}: {command_line('aril train-gail', cfg)}", flush=True)
+        gail.train_gail(cfg, log=print)
+        os.replace(partial, out)
+        return out
+    cfg = settings_of(provenance, dagger.LearnerConfig, seed=seed, out=str(out), run_dir=str(run_dir))
+    print(f"[report] training {out.stem}: {command_line('aril train-learner', cfg)}", flush=True)
+    return Path(dagger.train_learner(cfg, log=print))
+
+
+def train_seed_adversary(env: str, mode: str, policy: Path, eps: float, steps: int, out: Path) -> Path:
+    return ready_adversary(out, str(policy), env, mode, eps, "expert", steps, False, print)
+
+
+class Artifacts:
+    """Policy and adversary files per (defense, env, mode, seed): the bundled ones for seed 0, trained
+    into ``work_dir`` otherwise, ``workers`` at a time. A file that cannot be had is recorded in
+    ``missing`` with the reason."""
+
+    def __init__(self, work_dir: str | Path, workers: int, adversary_steps: int, log):
+        self.work, self.workers, self.adversary_steps, self.log = Path(work_dir), workers, adversary_steps, log
+        self.missing: dict[tuple, str] = {}
+
+    def _prepare(self, kind: str, wanted: dict[tuple, Path | Exception], fn, calls: dict[Path, tuple]) -> dict:
+        """``wanted`` maps each combo to its file (or the error that stops it); ``calls`` makes the files
+        not there yet (one call per file: a mode-independent policy is shared by both modes)."""
+        made = {out: out for out in calls if out.exists()}
+        todo = [out for out in calls if out not in made]
+        if todo:
+            self.log(f"[report] {len(todo)} {kind} files to train, {self.workers} at a time", flush=True)
+        for index, result in in_processes(fn, [calls[out] for out in todo], self.workers):
+            made[todo[index]] = result
+        files = {}
+        for combo, file in wanted.items():
+            result = made.get(file, file)
+            if isinstance(result, Exception):
+                self.missing[(kind, *combo)] = str(result)
+                self.log(f"[report] no {kind} for {' '.join(map(str, combo))}: {result}", flush=True)
+                result = None
+            files[combo] = result
+        return files
+
+    def policies(self, combos: list[tuple]) -> dict[tuple, Path | None]:
+        """Each (defense, env, mode, seed)'s policy file, or None."""
+        wanted, calls = {}, {}
+        for defense, env, mode, seed in combos:
+            try:
+                bundled = bundled_file(defense, env, mode)
+            except FAILURES as err:
+                wanted[(defense, env, mode, seed)] = err
+                continue
+            if seed == 0:
+                wanted[(defense, env, mode, seed)] = bundled
+                continue
+            name = f"{defense}-{env}{f'-{mode}' if defense in PER_MODE_POLICIES else ''}-seed{seed}"
+            out = self.work / "policies" / f"{name}.pt"
+            wanted[(defense, env, mode, seed)] = out
+            calls.setdefault(out, (defense, env, mode, seed, out, self.work / "learners" / name))
+        return self._prepare("policy", wanted, train_seed, calls)
+
+    def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
+        """The ARIL-A trained against each policy: the bundled one for seed 0 (when made for this eps)."""
+        wanted, calls = {}, {}
+        for (defense, env, mode, seed), policy in policies.items():
+            if policy is None:
+                continue
+            bundled = adversary_path(env, mode, defense)
+            if seed == 0 and trained_for(bundled, eps[env, mode]):
+                wanted[(defense, env, mode, seed)] = bundled
+                continue
+            out = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
+            wanted[(defense, env, mode, seed)] = out
+            calls[out] = (env, mode, policy, eps[env, mode], self.adversary_steps, out)
+        return self._prepare("adversary", wanted, train_seed_adversary, calls)
+
+
+def aril_rounds(policies: dict) -> dict:
+    """ARIL's per-round clean and attacked return, from each ARIL policy file's provenance."""
+    curves = {}
+    for (defense, env, mode, seed), path in policies.items():
+        if defense != "aril" or path is None:
+            continue
+        provenance = load_weights(path)[0]["provenance"]
+        settings = settings_of(provenance, dagger.LearnerConfig)
+        rounds = provenance.get("rounds_log", [])
+        curves[f"{env} {mode} seed {seed}"] = {
+            "round": [r["round"] for r in rounds], "attacked": [r["return"] for r in rounds],
+            "clean": [r.get("clean_return", r["return"]) for r in rounds],  # round 0: the expert's clean demos
+            "selected": provenance.get("selected"), "adversary_steps": settings.adversary_steps,
+            "warm_start": settings.warm_start}
+    return curves

@@ -1,0 +1,138 @@
+"""What the report evaluates and how: the evaluation plan, a process pool, and the cache of
+evaluations keyed by their arguments and the digests of the files they read."""
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import multiprocessing
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import seeds
+from ..policy import PolicyFileError
+from ..registry import THREATS
+
+FAILURES = (PolicyFileError, ValueError, RuntimeError, OSError)
+"""Recorded as a missing file or a failed benchmark, not raised."""
+
+
+def in_processes(fn, calls: list[tuple], workers: int):
+    """``fn(*call)`` for each call, ``workers`` at a time in spawned processes (in this one for a single
+    worker); yields ``(index, result or the FAILURES exception raised)`` as each finishes."""
+    if workers == 1:
+        for index, call in enumerate(calls):
+            try:
+                yield index, fn(*call)
+            except FAILURES as err:
+                yield index, err
+        return
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(fn, *call): index for index, call in enumerate(calls)}
+        for future in concurrent.futures.as_completed(futures):
+            err = future.exception()
+            if err is not None and not isinstance(err, FAILURES):
+                raise err
+            yield futures[future], err if err is not None else future.result()
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+
+@dataclass(frozen=True)
+class Key:
+    """Which table cell or sweep point an evaluation belongs to (``mode``: the table's, also for the clean run)."""
+
+    env: str
+    mode: str
+    defense: str
+    attack: str
+    scale: float
+    seed: int
+
+
+def evaluation_plan(policies: dict, adversaries: dict, eps: dict, episodes: int, sweep_episodes: int,
+                    sweep_attacks: list[str], scales: list[float], horizon: int) -> list[tuple[Key, dict]]:
+    """Every evaluation of every policy, with the arguments of :class:`aril_ros.evaluation.EvalConfig`:
+    clean and under each threat at the calibrated eps (the tables), the sweep attacks at ``scales`` times
+    it (the sweeps); ARIL-A only where an adversary was had. Episodes start at the defense table's seeds."""
+    plan = []
+    for (defense, env, mode, seed), policy in policies.items():
+        if policy is None:
+            continue
+        adversary = adversaries[(defense, env, mode, seed)]
+        points = [("none", 0.0, episodes)] + [(t, 1.0, episodes) for t in THREATS]
+        points += [(a, s, sweep_episodes) for a in sweep_attacks for s in scales]
+        for attack, scale, n in points:
+            if attack == "aril_a" and adversary is None:
+                continue
+            plan.append((Key(env, mode, defense, attack, scale, seed),
+                         {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
+                          "attack": attack, "eps": round(scale * eps[env, mode], 6),
+                          "attack_file": str(adversary) if attack == "aril_a" else "",
+                          "rescale": attack == "aril_a", "episodes": n, "seed": seeds.DEFENSE_TABLE,
+                          "horizon": horizon}))
+    return plan
+
+
+def _evaluate_job(job: dict) -> list[float]:
+    from ..evaluation import EvalConfig, evaluate
+
+    return evaluate(EvalConfig(**job))["returns"]
+
+
+def job_key(job: dict) -> str:
+    """The cache key: the evaluation's arguments and the digests of the policy and adversary files."""
+    files = {k: digest(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}
+    return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
+
+
+def run_jobs(jobs: list[dict], cache: Path, workers: int, fresh: bool, log) -> tuple[list[list[float]], dict]:
+    """Per-episode returns of each evaluation, from ``cache`` or computed ``workers`` at a time, and how
+    many distinct evaluations were run and read from the cache. Equal jobs (a mode-independent policy's
+    clean run, asked for by both modes) run once."""
+    cache.mkdir(parents=True, exist_ok=True)
+    keys = [job_key(job) for job in jobs]
+    done: dict[str, list[float]] = {}
+    todo: dict[str, dict] = {}
+    for key, job in zip(keys, jobs):
+        hit = cache / f"{key}.json"
+        if hit.exists() and not fresh:
+            done[key] = json.loads(hit.read_text())["returns"]
+        else:
+            todo[key] = job
+    counts = {"run": len(todo), "cached": len(done)}
+    log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
+    started = time.time()
+    todo_keys = list(todo)
+    for n, (index, returns) in enumerate(in_processes(_evaluate_job, [(todo[k],) for k in todo_keys], workers), 1):
+        if isinstance(returns, Exception):
+            raise returns
+        key = todo_keys[index]
+        job, done[key] = todo[key], returns
+        (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
+        log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
+            f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
+    return [done[key] for key in keys], counts
+
+
+def by_cell(plan: list[tuple[Key, dict]], returns: list[list[float]]) -> dict[tuple, list[list[float]]]:
+    """Each (env, mode, defense, attack, scale)'s per-episode returns, one list per training seed."""
+    evals: dict[tuple, list[list[float]]] = {}
+    for (key, _), r in zip(plan, returns):
+        evals.setdefault((key.env, key.mode, key.defense, key.attack, key.scale), []).append(r)
+    return evals
+
+
+def evaluations_json(plan: list[tuple[Key, dict]], returns: list[list[float]], relative) -> list[dict]:
+    """Each evaluation as the report's JSON records it (file names through ``relative``)."""
+    return [{"key": dataclasses.asdict(key),
+             "job": {**job, "policy": relative(job["policy"]),
+                     "attack_file": job["attack_file"] and relative(job["attack_file"])},
+             "mean": float(np.mean(r)), "returns": r} for (key, job), r in zip(plan, returns)]

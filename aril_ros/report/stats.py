@@ -1,0 +1,40 @@
+"""The one producer of table cells: per-episode returns (grouped by training seed) in, a cell out;
+and the one rule for a defense's worst attack. ``aril attack-table`` / ``defense-table`` print a cell's
+mean ± std, ``aril report`` its mean ± ci95: the same cell either way."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..registry import THREATS
+
+# Student's t, two-sided 95%, by degrees of freedom (the interval of a mean over seeds or episodes)
+T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228,
+       15: 2.131, 20: 2.086, 30: 2.042, 40: 2.021, 60: 2.000, 120: 1.980}
+
+
+def t95(df: int) -> float:
+    """The nearest tabled t at or below ``df`` degrees of freedom: a slightly wider interval, never a narrower one."""
+    return T95[max(k for k in T95 if k <= max(df, 1))]
+
+
+def summarise(per_seed: list[list[float]]) -> dict:
+    """A table cell from the per-episode returns of each training seed: ``mean`` (of the seed means),
+    ``std`` (over all episodes, as ``aril eval`` prints it), ``ci95`` (half-width of a Student-t 95%
+    interval: over the seed means when there are several seeds, since seed-to-seed variation is what a
+    reader wants bounded, else over the episodes), ``median``, ``seeds``, ``episodes`` (per seed), ``ci_over``."""
+    means = np.array([np.mean(r) for r in per_seed])
+    units = means if len(per_seed) > 1 else np.asarray(per_seed[0], dtype=float)
+    half = t95(len(units) - 1) * units.std(ddof=1) / math.sqrt(len(units)) if len(units) > 1 else float("nan")
+    episodes = np.concatenate([np.asarray(r, dtype=float) for r in per_seed])
+    return {"mean": float(means.mean()), "std": float(episodes.std()), "ci95": float(half),
+            "median": float(np.median(episodes)), "seeds": len(per_seed), "episodes": len(per_seed[0]),
+            "ci_over": "seeds" if len(per_seed) > 1 else "episodes"}
+
+
+def worst_attack(cells: dict, among=THREATS) -> str | None:
+    """The attack whose cell has the lowest mean, among ``among`` (in that order: the first wins a tie);
+    None when no cell of ``among`` is there."""
+    present = [a for a in among if cells.get(a)]
+    return min(present, key=lambda a: cells[a]["mean"]) if present else None
