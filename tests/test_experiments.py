@@ -46,11 +46,10 @@ def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
 
 
 def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path, make_policy, monkeypatch):
-    from aril_ros import adversary, experts
+    from aril_ros import registry
     from aril_ros.experiments import DefenseTableConfig, defense_table
 
-    monkeypatch.setattr(experts, "DATA_DIR", tmp_path / "data")
-    monkeypatch.setattr(adversary, "DATA_DIR", tmp_path / "data")  # no bundled adversary to reuse
+    monkeypatch.setattr(registry, "DATA_DIR", tmp_path / "data")  # bundled policies of its own, no adversary to reuse
     for seed, (kind, name) in enumerate((("expert", "Swimmer-v5"), ("dagger", "Swimmer-v5"),
                                          ("aril", "Swimmer-v5-sensory"))):
         save_policy(make_policy("Swimmer-v5", seed=seed), tmp_path / "data" / kind / f"{name}.pt")

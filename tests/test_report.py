@@ -4,9 +4,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aril_ros.experts import bundled_file
 from aril_ros.policy import load_weights
-from aril_ros.report import ReportConfig, build_report, in_processes, summarise, t95, table_markdown
+from aril_ros.registry import THREATS, bundled_file
+from aril_ros.report import ReportConfig, build_report, in_processes, summarise, t95, table_markdown, worst_attack
 
 
 def quiet(*args, **kwargs):
@@ -21,6 +21,41 @@ def test_intervals_are_over_seed_means_when_there_are_several_seeds():
     assert three["ci_over"] == "seeds" and three["mean"] == 20.0
     assert three["ci95"] == pytest.approx(4.303 * 10.0 / np.sqrt(3))  # t(2) * sd of the seed means / sqrt(3)
     assert t95(25) == 2.086  # the nearest tabled df below: a slightly wider interval, never a narrower one
+
+
+def test_one_producer_of_cells_gives_numpys_figures_and_one_rule_picks_the_worst_attack():
+    returns = [3.0, 7.5, -1.25, 10.0, 4.0]
+    cell = summarise([returns])
+    assert cell["mean"] == np.mean(returns) and cell["std"] == np.std(returns)  # the std aril eval prints (ddof 0)
+    assert cell["median"] == 4.0 and (cell["seeds"], cell["episodes"]) == (1, 5)
+    two = summarise([[1.0, 3.0], [5.0, 11.0]])
+    assert two["mean"] == 5.0 and two["std"] == np.std([1, 3, 5, 11])  # mean of seed means; std over all episodes
+    cells = {"none": {"mean": 100.0}, "random": {"mean": 90.0}, "fgsm": {"mean": 40.0}, "fgsm_k": {"mean": 40.0},
+             "aril_a": {"mean": 55.0}}
+    assert worst_attack(cells) == "fgsm"  # the lowest mean among the threats; a tie goes to the first in THREATS
+    assert "none" not in THREATS and worst_attack({"none": {"mean": 0.0}, "aril_a": {"mean": 1.0}}) == "aril_a"
+    assert worst_attack(cells, among=("random", "aril_a")) == "aril_a" and worst_attack({}) is None
+
+
+def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, monkeypatch):
+    from aril_ros import experiments
+    from aril_ros.report import table_cells
+
+    returns = {"none": [100.0, 104.0], "random": [90.0, 80.0], "fgsm": [50.0, 70.0], "fgsm_k": [61.0, 57.0],
+               "aril_a": [75.0, 65.0]}
+    monkeypatch.setattr(experiments, "evaluate", lambda cfg: {"returns": returns[cfg.attack or "none"],
+                                                              "eps": cfg.eps, "mean_expert_loss": 0.0})
+    monkeypatch.setattr(experiments, "ready_adversary", lambda *a, **k: None)
+    monkeypatch.setattr(experiments, "load_adversary", lambda path: type("A", (), {"meta": {"provenance": {}}}))
+    payload = experiments.defense_table(experiments.DefenseTableConfig(envs="Swimmer-v5", defenses="aril",
+                                                                       out=str(tmp_path / "def")), log=quiet)
+    ours = payload["rows"][0]["cells"]["aril"]
+    report = table_cells({("Swimmer-v5", "sensory", "aril", a, 0.0 if a == "none" else 1.0): [r]
+                          for a, r in returns.items()}, "Swimmer-v5", "sensory")[("aril", "worst")]
+    assert ours["worst"] == report["attack"] == "fgsm_k"
+    assert (ours["mean"], ours["std"], ours["clean"]) == (report["mean"], report["std"], report["clean"])
+    assert (ours["mean"], ours["std"], ours["clean"]) == (59, 2, 102)
+    assert "| ARIL | 59 ± 2 (-42.2%, FGSM^k) | -42.2% |" in (tmp_path / "def.md").read_text()
 
 
 def test_a_cell_that_could_not_be_produced_says_why():
@@ -74,12 +109,16 @@ def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, m
 
     seen = []
     monkeypatch.setattr(dagger, "train_learner", lambda cfg, log: seen.append(cfg) or cfg.out)
-    store = Artifacts(ReportConfig(work_dir=str(tmp_path), workers=1), quiet)  # in this process: training is patched
+    store = Artifacts(tmp_path, workers=1, adversary_steps=1000, log=quiet)  # in this process: training is patched
     out = store.policies([("aril", "Swimmer-v5", "physical", 2)])[("aril", "Swimmer-v5", "physical", 2)]
-    bundled = load_weights(bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]["command"]
+    bundled = load_weights(bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]
     cfg = seen[0]
     assert out == tmp_path / "policies" / "aril-Swimmer-v5-physical-seed2.pt" and cfg.seed == 2
-    for word in bundled.split()[2:]:
+    assert cfg.run_dir == str(tmp_path / "learners" / "aril-Swimmer-v5-physical-seed2")
+    for key, value in bundled["settings"].items():  # read back from the settings, not re-parsed from the command
+        if key not in ("seed", "out", "run_dir"):
+            assert getattr(cfg, key) == value, key
+    for word in bundled["command"].split()[2:]:  # which say what the command says
         key, value = word.split(":=")
         if key not in ("seed", "out", "run_dir"):
             assert str(getattr(cfg, key)) == value, key
@@ -130,3 +169,20 @@ def test_training_failures_are_recorded_and_other_errors_raised(workers):
     assert results[0] == 2.0 and results[2] == 3.0 and isinstance(results[1], ValueError)  # a missing cell, with why
     with pytest.raises(ZeroDivisionError):  # a bug, not a missing file: stops the report
         list(in_processes(operator.truediv, [(1, 0)], workers))
+
+
+def test_the_performance_step_finds_benchmarks_by_entry_point_not_by_path(monkeypatch):
+    from aril_ros.report import perf
+
+    figures = perf.run_benchmark("engine", ["env:=Swimmer-v5", "steps:=200", "n_envs:=4"])
+    assert figures["command"] == "python -m aril_ros.benchmarks.engine env:=Swimmer-v5 steps:=200 n_envs:=4"
+    assert figures["env"] == "Swimmer-v5" and figures["raw env.step"] > 0 and figures["engine physical"] > 0
+    missing = perf.run_benchmark("nowhere", [])
+    assert "no aril_ros.benchmarks entry named 'nowhere'" in missing["error"]
+    failed = perf.run_benchmark("engine", ["env:=CartPole-v1"])  # a benchmark that fails is recorded, not raised
+    assert failed["error"] and failed["command"].startswith("python -m aril_ros.benchmarks.engine")
+    ran = []
+    monkeypatch.setattr(perf.plugins, "names", lambda group: ["adversary", "engine", "graph", "extra"])
+    monkeypatch.setattr(perf, "run_benchmark", lambda name, args: ran.append((name, args)) or {})
+    assert list(perf.run_benchmarks(1000, quiet, env="Swimmer-v5")) == ["engine", "graph", "adversary", "extra"]
+    assert ran[0] == ("engine", ["env:=Swimmer-v5", "steps:=1000"]) and ran[-1] == ("extra", [])
