@@ -136,6 +136,20 @@ def train_against(cfg: AdversaryConfig, victim, log) -> Path:
     return out
 
 
+def trained_for(adversary: Path, eps: float) -> bool:
+    """Whether ``adversary`` exists and was trained for ``eps``."""
+    return adversary.exists() and load_adversary(adversary).eps == eps
+
+
+def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
+                    retrain: bool, log) -> Path:
+    """``adversary``, trained against ``victim`` first when it is missing, of another eps, or ``retrain``."""
+    if retrain or not trained_for(adversary, eps):
+        train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
+                                        out=str(adversary)), log=log)
+    return adversary
+
+
 def check_config(cfg: AdversaryConfig) -> None:
     if cfg.mode not in ATTACKED_MODES:
         raise ValueError(f"mode:= must be sensory or physical, got {cfg.mode!r}")

@@ -58,3 +58,8 @@ def usage(cls, prog: str, summary: str) -> str:
     for f in dataclasses.fields(cls):
         lines.append(f"  {f.name + ':=':<16} {f.metadata.get('help', '')} (default: {f.default!r})")
     return "\n".join(lines)
+
+
+def comma_list(text: str) -> list[str]:
+    """``a,b,c`` as a list (empty items dropped)."""
+    return [x for x in text.split(",") if x]

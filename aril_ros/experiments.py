@@ -22,16 +22,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import seeds
-from .adversary import load_adversary
+from .adversary import load_adversary, ready_adversary
 from .envs import HORIZON
-from .args import arg
+from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate
 from .provenance import stamp
 from .registry import (ATTACKED_MODES, ATTACKS, CALIBRATION, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS,
                        adversary_path, bundled_file, calibrated_eps)
-from .report.artifacts import ready_adversary
 from .report.stats import summarise, worst_attack
-from .report.tables import comma_list
 
 CALIBRATION_MARKDOWN = "results/eps_calibration.md"
 """Where ``aril calibrate-eps`` writes its table by default (its JSON: the bundled calibration)."""

@@ -6,7 +6,10 @@ import pytest
 
 from aril_ros.policy import load_weights
 from aril_ros.registry import THREATS, bundled_file
-from aril_ros.report import ReportConfig, build_report, in_processes, summarise, t95, table_markdown, worst_attack
+from aril_ros.report import ReportConfig, build_report
+from aril_ros.report.jobs import in_processes
+from aril_ros.report.stats import summarise, t95, worst_attack
+from aril_ros.report.tables import table_markdown
 
 
 def quiet(*args, **kwargs):
@@ -39,7 +42,7 @@ def test_one_producer_of_cells_gives_numpys_figures_and_one_rule_picks_the_worst
 
 def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, monkeypatch):
     from aril_ros import experiments
-    from aril_ros.report import table_cells
+    from aril_ros.report.tables import table_cells
 
     returns = {"none": [100.0, 104.0], "random": [90.0, 80.0], "fgsm": [50.0, 70.0], "fgsm_k": [61.0, 57.0],
                "aril_a": [75.0, 65.0]}
@@ -105,7 +108,7 @@ def test_bad_report_arguments_are_refused(tmp_path):
 
 def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, monkeypatch):
     from aril_ros import dagger
-    from aril_ros.report import Artifacts
+    from aril_ros.report.artifacts import Artifacts
 
     seen = []
     monkeypatch.setattr(dagger, "train_learner", lambda cfg, log: seen.append(cfg) or cfg.out)

@@ -42,21 +42,19 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..args import arg
+from ..args import arg, comma_list
 from ..envs import HORIZON
 from ..provenance import git_revision, stamp
 from ..registry import ATTACKED_MODES, DEFAULT_ENV, PAPER_DEFENSES, PAPER_ENVS, THREATS, calibrated_eps
 from ..seeds import DEFENSE_TABLE
 from .artifacts import Artifacts, aril_rounds
-from .jobs import by_cell, digest, evaluation_plan, evaluations_json, in_processes, run_jobs
+from .jobs import by_cell, digest, evaluation_plan, evaluations_json, run_jobs
 from .perf import run_benchmarks
 from .plots import plot_figures
-from .stats import summarise, t95, worst_attack
-from .tables import comma_list, make_tables, table_cells, table_markdown
+from .tables import make_tables
 from .text import report_markdown
 
-__all__ = ["ReportConfig", "build_report", "Artifacts", "in_processes", "summarise", "t95", "worst_attack",
-           "table_cells", "table_markdown"]
+__all__ = ["ReportConfig", "build_report"]
 
 REPO = Path(__file__).resolve().parents[2]
 """The checkout this package runs from (for repository-relative file names in the report's JSON)."""

@@ -7,26 +7,12 @@ import os
 from pathlib import Path
 
 from .. import dagger, gail
-from ..adversary import AdversaryConfig, load_adversary, train_adversary
+from ..adversary import ready_adversary, trained_for
 from ..args import command_line
 from ..policy import load_weights
 from ..provenance import settings_of
 from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file
 from .jobs import FAILURES, in_processes
-
-
-def trained_for(adversary: Path, eps: float) -> bool:
-    """Whether ``adversary`` exists and was trained for ``eps``."""
-    return adversary.exists() and load_adversary(adversary).eps == eps
-
-
-def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
-                    retrain: bool, log) -> Path:
-    """``adversary``, trained against ``victim`` first when it is missing, of another eps, or ``retrain``."""
-    if retrain or not trained_for(adversary, eps):
-        train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
-                                        out=str(adversary)), log=log)
-    return adversary
 
 
 def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir: Path) -> Path:

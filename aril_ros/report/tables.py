@@ -10,11 +10,6 @@ DAGGER_ATTACKS = tuple(a for d, a in TABLE_ROWS if d == "dagger" and a != "none"
 """The attacks on DAgger the tables show as rows of their own (the paper's Adversary rows)."""
 
 
-def comma_list(text: str) -> list[str]:
-    """``a,b,c`` as a list (empty items dropped)."""
-    return [x for x in text.split(",") if x]
-
-
 def table_cells(evals: dict, env: str, mode: str) -> dict:
     """Each table row's cell for one env and mode (None when not evaluated); a defense's ``worst`` row is
     its cell under its worst attack, with ``attack`` and its ``clean`` mean beside."""
