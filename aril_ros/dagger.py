@@ -222,8 +222,8 @@ class LearnerRun:
                       **stamp("aril train-learner", cfg), "expert": cfg.expert,
                       "expert_provenance": self.expert.meta.provenance, "mode": self.mode, "attack": self.attack,
                       "eps": cfg.eps if self.attack != "none" else 0.0, "seed": cfg.seed}
-        policy = fit_policy(self.data, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch, cfg.seed * 1000 + r,
-                            provenance)
+        policy = fit_policy(self.data, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch,
+                            seeds.round_weights(cfg.seed, r), provenance)
         save_policy(policy, self.policy_file(r + 1))
         _save_atomic(self.data_path, lambda tmp: _write_data(tmp, self.data, self.data_round))
         return {"samples": len(self.data), "train_loss": policy.meta.provenance["final_train_loss"]}
@@ -246,8 +246,8 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
         return ""
     out = str(run.dir / f"adversary-{r}.pt")
     train_adversary(AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
-                                    expert=cfg.expert, steps=cfg.adversary_steps, seed=cfg.seed * 1000 + r,
-                                    init=str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else "",
+                                    expert=cfg.expert, steps=cfg.adversary_steps,
+                                    seed=seeds.round_weights(cfg.seed, r), init=str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else "",
                                     out=out), log=log)
     return out
 

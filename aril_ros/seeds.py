@@ -52,3 +52,10 @@ def collection(seed: int, round_: int) -> int:
 def adversary_training(seed: int) -> int:
     """First env seed of ``train-adversary`` with ``seed:=seed`` (it resets one env per new episode)."""
     return training_block(seed) + ADVERSARY_SLICE
+
+
+def round_weights(seed: int, round_: int) -> int:
+    """The torch seed of round ``round_``'s fit and (ARIL) adversary in ``train-learner`` with ``seed:=seed``
+    (weights and minibatches, not env seeds: the round's adversary, trained with ``seed:=`` this value,
+    resets its envs in that training seed's block, which no evaluation shares)."""
+    return seed * 1000 + round_
