@@ -6,9 +6,9 @@ then optionally more (Ant-v5 appends contact forces). :func:`layout_of` finds ``
 states and comparing ``_get_obs()`` with ``qpos``/``qvel``, so any such id works, and refuses ids whose
 observation does not start that way (Reacher, InvertedDoublePendulum) or that are not MuJoCo envs.
 
-This module and the step rules (:func:`aril_ros.step.physical_state`, which writes a physical
-perturbation into a full state through :class:`ObsLayout`) are the only places that know raw ``qpos``
-indices: the attacks and the rollout engine speak in observation coordinates.
+This module and the step rules (:func:`aril_ros.step.perturb_qpos`, which writes a physical
+perturbation through :class:`ObsLayout`) are the only places that know raw ``qpos`` indices: the
+attacks and the rollout engine speak in observation coordinates.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ import numpy as np
 from gymnasium.envs.mujoco import MujocoEnv
 
 from .registry import PAPER_ENVS
-from .step import physical_state
+from .step import perturb_qpos
 
 HORIZON = 1000  # the paper's episode length for every env
 
@@ -239,9 +239,10 @@ class MujocoSim:
 
     def perturb(self, delta: np.ndarray) -> np.ndarray:
         """Physical attack: move the real zero-order state by ``delta`` (observation coordinates), by the
-        one rule the simulator node applies too (:func:`aril_ros.step.physical_state`). Returns the new
+        one rule the graph's attacker applies too (:func:`aril_ros.step.perturb_qpos`). Returns the new
         observation."""
-        self.set_state(physical_state(self.layout, self.get_state(), delta))
+        perturb_qpos(self.layout, self.data.qpos, delta)
+        mujoco.mj_forward(self.model, self.data)
         return self.observe()
 
     def close(self) -> None:

@@ -45,16 +45,21 @@ def sensory_observation(true_obs: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return true_obs + delta
 
 
-def physical_state(layout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """A physical attack: the ``mjSTATE_INTEGRATION`` vector ``state`` with ``delta[position]`` added to
-    ``qpos[qpos_offset:]`` (the observation's zero-order entries).
+def perturb_qpos(layout, qpos: np.ndarray, delta: np.ndarray) -> None:
+    """A physical attack, in place: ``delta[position]`` added to ``qpos[qpos_offset:]`` (the entries the
+    observation's zero-order part shows). The engine applies it to MuJoCo's ``qpos`` directly.
 
     A free joint's quaternion is left unnormalised: MuJoCo normalises it wherever it is used, so the
     bound ``|delta| <= eps`` holds exactly on what is written.
     """
+    qpos[layout.qpos_offset : layout.qpos_offset + layout.n_position] += delta[layout.position]
+
+
+def physical_state(layout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """The ``mjSTATE_INTEGRATION`` vector ``state`` moved by :func:`perturb_qpos`: what the attacker node
+    sends the simulator, which gives bit-for-bit the engine's state."""
     new = np.array(state, dtype=np.float64)
-    start = STATE_QPOS_START + layout.qpos_offset
-    new[start : start + layout.n_position] += delta[layout.position]
+    perturb_qpos(layout, new[STATE_QPOS_START:], delta)
     return new
 
 
