@@ -2,13 +2,15 @@
 
 A provenance record holds the command that reproduces the file (for a person to read and rerun) and
 the same settings as JSON (``settings``, for a program to read back: :func:`settings_of`), the git
-revision and the time; trainings add their own figures beside these.
+revision, the versions of the simulator and its kin, and the time; trainings add their own figures
+beside these.
 """
 from __future__ import annotations
 
 import dataclasses
 import datetime
 import subprocess
+from importlib import metadata
 from pathlib import Path
 
 from .args import command_line
@@ -28,10 +30,15 @@ def now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
+def versions() -> dict:
+    """The versions of what decides a trajectory: a new MuJoCo or gymnasium changes returns as much as new code."""
+    return {name: metadata.version(name) for name in ("mujoco", "gymnasium", "numpy", "torch")}
+
+
 def stamp(prog: str, cfg) -> dict:
-    """``command``, ``settings``, ``git_revision`` and ``created`` for a run of ``prog`` with ``cfg``."""
+    """``command``, ``settings``, ``git_revision``, ``versions`` and ``created`` for a run of ``prog`` with ``cfg``."""
     return {"command": command_line(prog, cfg), "settings": dataclasses.asdict(cfg), "git_revision": git_revision(),
-            "created": now()}
+            "versions": versions(), "created": now()}
 
 
 def settings_of(provenance: dict, cls, **changes):
