@@ -44,7 +44,6 @@ def digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
 
 
-
 @dataclass(frozen=True)
 class Key:
     """Which table cell or sweep point an evaluation belongs to (``mode``: the table's, also for the clean run)."""
