@@ -8,7 +8,7 @@ points in ``pyproject.toml``, so the arrows go one way only, from the ROS side t
 - ``aril_ros.collectors``: where ``train-learner source:=<name>`` collects a round (``graph``: through
   the ROS 2 nodes); a function ``collect(request: CollectRequest) -> RunLog-like arrays``.
 - ``aril_ros.victims``: ``train-adversary victim:=<name>`` attacks a policy reached elsewhere (``ros``:
-  any policy node); a function ``connect(env_id) -> victim`` with ``act``, ``meta.provenance`` and ``close``.
+  any policy node); a callable ``(env_id) -> victim`` (e.g. the victim class) with ``act``, ``meta.provenance`` and ``close``.
 - ``aril_ros.benchmarks``: modules ``aril report`` runs as ``python -m <module> key:=value ...``,
   each ending with one JSON line (``graph``: the ROS 2 graph's steps/s).
 

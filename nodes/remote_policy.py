@@ -1,6 +1,6 @@
 """A policy reached over ROS: any node that answers ``observation`` with ``action`` (the documented
 policy contract), used as a black-box victim, e.g. for ``aril train-adversary victim:=ros``: the
-``aril_ros.victims`` entry point ``ros`` is :func:`connect`.
+``aril_ros.victims`` entry point ``ros`` is :class:`RemotePolicy` itself.
 
 ``RemotePolicy.act(batch)`` publishes one ``observation`` per row, tagged ``"<batch>/<row>"``, and
 waits for every tagged ``action``; the policy node needs nothing but the contract in msgs_doc/.
@@ -74,9 +74,3 @@ class RemotePolicy:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
-
-
-def connect(env_id: str) -> RemotePolicy:
-    """The ``aril_ros.victims`` entry point ``ros``: the policy node answering in the current
-    ``ROS_DOMAIN_ID``, as a victim with ``act``, ``meta.provenance`` and ``close``."""
-    return RemotePolicy(env_id)

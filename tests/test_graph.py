@@ -239,7 +239,7 @@ def test_the_ros_side_registers_its_command_collector_victim_and_benchmark(capsy
     assert plugins.load("aril_ros.commands", "replay") is replay.COMMAND
     assert replay.COMMAND.config is replay.ReplayConfig and replay.COMMAND.run is replay.replay
     assert plugins.load("aril_ros.collectors", "graph") is collect.collect_round
-    assert plugins.load("aril_ros.victims", "ros") is remote_policy.connect
+    assert plugins.load("aril_ros.victims", "ros") is remote_policy.RemotePolicy
     assert main(["replay", "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: aril replay") and "file:=" in out and "rate:=" in out
