@@ -1,7 +1,9 @@
 """ARIL-A, the learned adversary (paper §4.2), trained by PPO on vectorised in-process simulators.
 
-The adversary (:class:`aril_ros.adversary_net.AdversaryNet`) is a Gaussian over perturbations of the
-zero-order entries of the *true* observation ``s``, samples clipped to ``±eps``. Its reward at step h
+The adversary (:class:`aril_ros.adversary_net.AdversaryNet`) is a distribution over perturbations of the
+zero-order entries within ``±eps`` (by default a categorical over ``{-eps, 0, +eps}`` per entry), given the
+*true* observation ``s`` (and, with ``inputs:=state+actions``, the victim's and the expert's actions on
+``s``, which the trainer queries anyway for the critic). Its reward at step h
 is the victim's disagreement with the expert on the true state, ``||a_h - pi_e(s_h)||^2``, where
 ``a_h`` is the victim's action on what the attack made it see (sensory) or on the moved state
 (physical), by the step rules of :mod:`aril_ros.step`; PPO maximises the discounted sum. It never
@@ -29,12 +31,12 @@ import torch
 from torch import nn
 
 from . import plugins, seeds
-from .adversary_net import AdversaryNet, load_adversary, save_adversary
+from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_size, load_adversary, save_adversary
 from .args import arg
 from .envs import layout_of
 from .policy import resolve_policy
 from .provenance import stamp
-from .registry import ATTACKED_MODES, DEFAULT_ENV
+from .registry import ATTACKED_MODES, DEFAULT_ENV, check_name
 from .rollout import SimBatch
 from .step import disagreement
 
@@ -81,6 +83,11 @@ class AdversaryConfig:
     vf_coef: float = arg(0.5, "value loss weight (Table 3)")
     max_grad_norm: float = arg(0.5, "gradient norm clip")
     hidden: int = arg(64, "width of the two hidden layers")
+    policy: str = arg("categorical", "categorical: one of {-eps, 0, +eps} per zero-order entry (the corners of the "
+                                     "L-infinity box, where a one-step attack's optimum lies); gaussian: a Normal "
+                                     "around eps*tanh(net), clipped to the box (the adversaries made before)")
+    inputs: str = arg("state+actions", "state: the true observation alone; state+actions: also the victim's action "
+                                       "on it unperturbed and the expert's (queried answers, never weights)")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
     norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
     baseline: bool = arg(True, "value = the victim's unperturbed disagreement at the state (computed exactly) + a "
@@ -115,7 +122,7 @@ def train_against(cfg: AdversaryConfig, victim, log) -> Path:
     expert = resolve_policy(cfg.expert, cfg.env)
     made_by = stamp("aril train-adversary", cfg)
     sims, resets = SimBatch(cfg.env, cfg.n_envs), EnvSeeds(seeds.adversary_training(cfg.seed))
-    net = initial_adversary(cfg, *input_scaling(cfg, sims, victim, resets))
+    net = initial_adversary(cfg, *input_scaling(cfg, sims, victim, expert, resets))
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
     gen = torch.Generator().manual_seed(cfg.seed)
     collector = Collector(cfg, sims, resets, net, victim, expert, gen)
@@ -155,6 +162,8 @@ def check_config(cfg: AdversaryConfig) -> None:
         raise ValueError(f"mode:= must be sensory or physical, got {cfg.mode!r}")
     if not cfg.eps > 0:
         raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
+    check_name("adversary policy", cfg.policy, POLICIES)
+    check_name("adversary inputs", cfg.inputs, INPUTS)
 
 
 class EnvSeeds:
@@ -169,15 +178,18 @@ class EnvSeeds:
         return taken
 
 
-def input_scaling(cfg: AdversaryConfig, sims: SimBatch, victim, resets: EnvSeeds) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and std of the states the victim visits unattacked over ``warmup`` steps: reset states
-    alone have almost no spread, and would blow the normalised inputs up once it runs."""
+def input_scaling(cfg: AdversaryConfig, sims: SimBatch, victim, expert, resets: EnvSeeds
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std of the adversary's inputs on the states the victim visits unattacked over ``warmup``
+    steps: reset states alone have almost no spread, and would blow the normalised inputs up once it runs."""
     rows = range(len(sims))
     obs = sims.reset(resets.take(len(sims)))
-    visited = [obs.copy()]
-    for _ in range(cfg.warmup):
-        obs = sims.step(victim.act(obs), rows)[0]
-        visited.append(obs.copy())
+    visited = []
+    for _ in range(cfg.warmup + 1):
+        action = victim.act(obs)
+        visited.append(np.concatenate([obs, action, expert.act(obs)], axis=1)
+                       if cfg.inputs == "state+actions" else obs.copy())
+        obs = sims.step(action, rows)[0]
     visited = np.concatenate(visited)
     return visited.mean(0), visited.std(0) + 1e-3
 
@@ -186,13 +198,16 @@ def initial_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.nd
     """Fresh seeded weights, or (``init:=``) the previous round's adversary with its input scaling."""
     if cfg.init:
         net = load_adversary(cfg.init, cfg.env, cfg.mode).train()
-        if (net.eps, net.meta["hidden"]) != (cfg.eps, cfg.hidden):
-            raise ValueError(f"init:={cfg.init} has eps {net.eps} and width {net.meta['hidden']}, "
-                             f"not eps:={cfg.eps} hidden:={cfg.hidden}")
+        have = (net.eps, net.meta["hidden"], net.meta["policy"], net.meta["inputs"])
+        if have != (cfg.eps, cfg.hidden, cfg.policy, cfg.inputs):
+            raise ValueError(f"init:={cfg.init} has eps {have[0]}, width {have[1]}, policy {have[2]} and inputs "
+                             f"{have[3]}, not eps:={cfg.eps} hidden:={cfg.hidden} policy:={cfg.policy} "
+                             f"inputs:={cfg.inputs}")
         return net
     layout = layout_of(cfg.env)
-    meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim,
-            "n_position": layout.n_position, "hidden": cfg.hidden, "obs_mean": obs_mean.tolist(),
+    meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim, "act_dim": layout.act_dim,
+            "n_position": layout.n_position, "policy": cfg.policy, "inputs": cfg.inputs, "hidden": cfg.hidden,
+            "obs_mean": obs_mean.tolist(),
             "obs_std": obs_std.tolist(), "provenance": {}}
     with torch.random.fork_rng():  # seeded initial weights without touching the global generator
         torch.manual_seed(cfg.seed)
@@ -204,6 +219,7 @@ class Rollout:
     """``T`` steps of ``n`` simulators, as PPO needs them (rewards and values in units of the return's spread)."""
 
     obs: torch.Tensor
+    """the adversary's input rows"""
     sample: torch.Tensor
     logp: torch.Tensor
     reward: torch.Tensor
@@ -230,38 +246,44 @@ class Collector:
         self.return_scale = RunningStd()
         self.finished_loss: list[float] = []
         self.finished_return: list[float] = []
+        self.entropy = float("nan")
 
-    def unperturbed_loss(self, states: np.ndarray, label: np.ndarray | None = None) -> np.ndarray:
-        """The disagreement the victim would have without the attack: the exact part of the value
-        (``label``: the expert's actions on ``states`` when already known)."""
-        if not self.cfg.baseline:
-            return np.zeros(len(states))
-        return disagreement(self.victim.act(states), self.expert.act(states) if label is None else label)
+    def answers(self, states: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+        """The victim's action on ``states`` unperturbed (when the critic or the inputs need it) and the
+        expert's: one query of each per state."""
+        needed = self.cfg.baseline or self.net.takes_actions
+        return (self.victim.act(states) if needed else None), self.expert.act(states)
+
+    def unperturbed_loss(self, clean: np.ndarray | None, label: np.ndarray) -> np.ndarray:
+        """The disagreement the victim would have without the attack: the exact part of the value."""
+        return disagreement(clean, label) if self.cfg.baseline else np.zeros(len(label))
 
     def collect(self) -> Rollout:
         cfg, n, T = self.cfg, len(self.sims), self.cfg.rollout
         rows = range(n)
-        buf = Rollout(obs=torch.zeros(T, n, self.obs.shape[1]), sample=torch.zeros(T, n, self.n_position),
-                      logp=torch.zeros(T, n), reward=torch.zeros(T, n), value=torch.zeros(T, n),
-                      base=torch.zeros(T, n), done=torch.zeros(T, n), next_value=torch.zeros(n))
+        buf = Rollout(obs=torch.zeros(T, n, input_size(self.net.meta)),
+                      sample=torch.zeros(T, n, self.n_position), logp=torch.zeros(T, n), reward=torch.zeros(T, n),
+                      value=torch.zeros(T, n), base=torch.zeros(T, n), done=torch.zeros(T, n),
+                      next_value=torch.zeros(n))
         for t in range(T):
             # the adversary perturbs, the victim acts, the expert labels the true state
-            obs_t = torch.as_tensor(self.obs, dtype=torch.float32)
+            clean, label = self.answers(self.obs)
+            x = torch.as_tensor(self.net.inputs(self.obs, clean, label), dtype=torch.float32)
             with torch.no_grad():
-                dist = self.net.distribution(obs_t)
-                sample = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=self.gen)
+                dist = self.net.distribution(x)
+                sample = self.net.draw(dist, self.gen)
                 buf.logp[t] = dist.log_prob(sample).sum(-1)
-                remainder = self.net.value(obs_t)
+                remainder = self.net.value(x)
+                self.entropy = float(dist.entropy().mean())
             delta = np.zeros_like(self.obs)
-            delta[:, : self.n_position] = sample.clamp(-cfg.eps, cfg.eps).double().numpy()
+            delta[:, : self.n_position] = self.net.delta(sample).double().numpy()
             action = self.victim.act(self.sims.seen(cfg.mode, self.obs, delta, rows))
-            label = self.expert.act(self.obs)
             loss = disagreement(action, label)
             # the perturbation moves the disagreement by little next to how much it varies from state to
             # state, more than a learned value can follow: the unperturbed disagreement, known exactly for
             # every visited state, carries that part of the value
-            base = self.unperturbed_loss(self.obs, label)
-            buf.obs[t], buf.sample[t] = obs_t, sample
+            base = self.unperturbed_loss(clean, label)
+            buf.obs[t], buf.sample[t] = x, sample
             self.discounted = self.discounted * cfg.gamma + loss
             self.return_scale.update(self.discounted)
             # in units of the return's spread, so the value loss and the clip ranges keep their meaning
@@ -288,9 +310,10 @@ class Collector:
 
     def value_of(self, states: np.ndarray, scale: float) -> torch.Tensor:
         """The full value of ``states``: the learned remainder plus their unperturbed disagreement."""
+        clean, label = self.answers(states)
         with torch.no_grad():
-            remainder = self.net.value(torch.as_tensor(states, dtype=torch.float32))
-        return remainder + torch.as_tensor(self.unperturbed_loss(states) / scale, dtype=torch.float32)
+            remainder = self.net.value(torch.as_tensor(self.net.inputs(states, clean, label), dtype=torch.float32))
+        return remainder + torch.as_tensor(self.unperturbed_loss(clean, label) / scale, dtype=torch.float32)
 
     def recent_loss(self) -> float | None:
         recent = self.finished_loss[-4 * len(self.sims):]
@@ -302,7 +325,7 @@ class Collector:
         return (f"[train-adversary {self.cfg.env} {self.cfg.mode} eps={self.cfg.eps}] step {steps:>8d}  "
                 f"{steps / seconds:6.0f} steps/s  episode loss {float('nan') if loss is None else loss:9.1f}  "
                 f"victim return {np.mean(recent) if recent else float('nan'):8.1f}  "
-                f"std/eps {float(self.net.log_std.detach().exp().mean()) / self.cfg.eps:.3f}")
+                f"entropy/entry {self.entropy:.3f}")
 
 
 def advantages_gae(batch: Rollout, cfg: AdversaryConfig) -> tuple[torch.Tensor, torch.Tensor]:
@@ -339,6 +362,7 @@ def ppo_update(net: AdversaryNet, optimizer, batch: Rollout, advantages: torch.T
             loss.backward()
             # clipped apart: the value loss (in units of summed disagreement) would otherwise
             # dominate the joint norm and shrink every policy step along with it
-            nn.utils.clip_grad_norm_([*net.mean_net.parameters(), net.log_std], cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_([p for name, p in net.named_parameters() if not name.startswith("value_net")],
+                                     cfg.max_grad_norm)
             nn.utils.clip_grad_norm_(net.value_net.parameters(), cfg.max_grad_norm)
             optimizer.step()

@@ -1,22 +1,39 @@
 """The learned adversary's network and its file format (ARIL-A, paper §4.2; trained by :mod:`aril_ros.adversary`).
 
-The adversary f is a Gaussian over perturbations of the zero-order entries: mean ``eps * tanh(net(s))``
-of the *true* observation ``s``, a state-independent std initialised to ``0.1 * eps``. A value head
-holds the learned remainder of the trainer's value (see :mod:`aril_ros.adversary`).
+The adversary f maps what it knows of a step to a distribution over perturbations of the zero-order
+entries, within ``±eps``. Two choices, recorded in the file's meta:
+
+- ``policy``: ``categorical`` (default for new files) — per zero-order entry, one of ``{-eps, 0, +eps}``.
+  A one-step attack's optimum lies on the corners of the L-infinity box, which this policy reaches by
+  one choice per entry; ``gaussian`` (files made before it) — mean ``eps * tanh(net(x))`` and a
+  state-independent std initialised to ``0.1 * eps``, samples clipped to the box.
+- ``inputs``: ``state`` — the *true* observation ``s`` alone; ``state+actions`` — ``s``, the victim's
+  action on ``s`` unperturbed and the expert's action on ``s``. Both actions are answers to queries the
+  attack may make of a black box (never its weights): the map need not rediscover the victim from the
+  state alone.
+
+A value head holds the learned remainder of the trainer's value (see :mod:`aril_ros.adversary`).
 
 Adversary files (``*.pt``) use the policy-file container (:func:`aril_ros.policy.save_weights`) with
-format ``aril_ros.adversary`` and a JSON meta: env id, mode, eps, sizes, hidden width, observation
-normalisation and provenance (victim, expert, training steps, seconds, seed, command and settings).
+format ``aril_ros.adversary`` and a JSON meta: env id, mode, eps, sizes, policy, inputs, hidden width,
+input normalisation (over the inputs) and provenance (victim, expert, training steps, seconds, seed,
+command and settings).
 """
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
 from .policy import PolicyFileError, load_weights, save_weights
+
+POLICIES = ("categorical", "gaussian")
+INPUTS = ("state", "state+actions")
+CHOICES = 3
+"""A categorical adversary's choices per entry, in order: -eps, 0, +eps."""
 
 
 def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
@@ -24,32 +41,72 @@ def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
                          nn.Linear(hidden, n_out))
 
 
+def input_size(meta: dict) -> int:
+    """Length of the adversary's input row: the observation, and the two actions if it takes them."""
+    return meta["obs_dim"] + (2 * meta["act_dim"] if meta.get("inputs", "state") == "state+actions" else 0)
+
+
 class AdversaryNet(nn.Module):
-    """Mean ``eps * tanh(net(s))`` over the zero-order entries, learnable log-std, and a value head
-    (the learned remainder of the value, see the module docstring)."""
+    """The adversary's policy head (categorical logits or a Gaussian mean with a learnable log-std)
+    and its value head, both on the normalised input row (see the module docstring)."""
 
     def __init__(self, meta: dict):
         super().__init__()
+        meta.setdefault("policy", "gaussian")  # files made before the categorical policy say nothing
+        meta.setdefault("inputs", "state")
+        for key, allowed in (("policy", POLICIES), ("inputs", INPUTS)):
+            if meta[key] not in allowed:
+                raise ValueError(f"adversary {key} must be one of {', '.join(allowed)}, got {meta[key]!r}")
         self.meta = meta
-        obs_dim, n_out, hidden = meta["obs_dim"], meta["n_position"], meta["hidden"]
-        self.eps = float(meta["eps"])
-        self.mean_net = _mlp(obs_dim, hidden, n_out)
-        self.value_net = _mlp(obs_dim, hidden, 1)
-        self.log_std = nn.Parameter(torch.full((n_out,), math.log(0.1 * self.eps)))
+        n_in, n_out, hidden = input_size(meta), meta["n_position"], meta["hidden"]
+        self.eps, self.n_position = float(meta["eps"]), n_out
+        self.categorical = meta["policy"] == "categorical"
+        self.takes_actions = meta["inputs"] == "state+actions"
+        self.mean_net = _mlp(n_in, hidden, n_out * CHOICES if self.categorical else n_out)
+        self.value_net = _mlp(n_in, hidden, 1)
+        if not self.categorical:
+            self.log_std = nn.Parameter(torch.full((n_out,), math.log(0.1 * self.eps)))
         self.register_buffer("obs_mean", torch.tensor(meta["obs_mean"], dtype=torch.float32))
         self.register_buffer("obs_std", torch.tensor(meta["obs_std"], dtype=torch.float32))
 
-    def normalise(self, obs: torch.Tensor) -> torch.Tensor:
-        return ((obs.float() - self.obs_mean) / self.obs_std).clamp(-10.0, 10.0)
+    def inputs(self, obs: np.ndarray, victim_action: np.ndarray | None, expert_action: np.ndarray | None) -> np.ndarray:
+        """The input rows: ``obs``, followed by both actions when the adversary takes them."""
+        if not self.takes_actions:
+            return obs
+        if victim_action is None or expert_action is None:
+            raise ValueError("this adversary takes the victim's and the expert's actions on the true state")
+        return np.concatenate([obs, victim_action, expert_action], axis=1)
 
-    def mean(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.eps * torch.tanh(self.mean_net(self.normalise(obs)))
+    def normalise(self, x: torch.Tensor) -> torch.Tensor:
+        return ((x.float() - self.obs_mean) / self.obs_std).clamp(-10.0, 10.0)
 
-    def distribution(self, obs: torch.Tensor) -> torch.distributions.Normal:
-        return torch.distributions.Normal(self.mean(obs), self.log_std.exp().expand(len(obs), -1))
+    def distribution(self, x: torch.Tensor) -> torch.distributions.Distribution:
+        """Per zero-order entry: a categorical over the choice index, or a Normal over the perturbation."""
+        out = self.mean_net(self.normalise(x))
+        if self.categorical:
+            return torch.distributions.Categorical(logits=out.reshape(len(x), self.n_position, CHOICES))
+        mean = self.eps * torch.tanh(out)
+        return torch.distributions.Normal(mean, self.log_std.exp().expand(len(x), -1))
 
-    def value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.value_net(self.normalise(obs)).squeeze(-1)
+    def draw(self, dist: torch.distributions.Distribution, gen: torch.Generator) -> torch.Tensor:
+        """A sample of ``dist`` from ``gen`` (choice indices, or perturbations before clipping)."""
+        if self.categorical:
+            flat = torch.multinomial(dist.probs.reshape(-1, CHOICES), 1, generator=gen)
+            return flat.reshape(dist.probs.shape[:-1]).float()
+        return dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=gen)
+
+    def delta(self, sample: torch.Tensor) -> torch.Tensor:
+        """The perturbation of the zero-order entries a sample stands for, within ±eps."""
+        if self.categorical:
+            return self.eps * (sample - 1.0)
+        return sample.clamp(-self.eps, self.eps)
+
+    def most_likely(self, dist: torch.distributions.Distribution) -> torch.Tensor:
+        """The perturbation ``dist`` ranks highest: each entry's likeliest choice, or the mean."""
+        return self.delta(dist.probs.argmax(-1).float()) if self.categorical else dist.mean
+
+    def value(self, x: torch.Tensor) -> torch.Tensor:
+        return self.value_net(self.normalise(x)).squeeze(-1)
 
 
 def save_adversary(net: AdversaryNet, path: str | Path) -> Path:

@@ -17,7 +17,7 @@ import torch
 from .adversary_net import AdversaryNet, load_adversary
 from .envs import ObsLayout
 from .policy import in_blocks
-from .registry import ATTACKS, WHITE_BOX, adversary_path, check_name
+from .registry import ATTACKS, QUERY_ATTACKS, WHITE_BOX, adversary_path, check_name
 
 
 class Attack:
@@ -107,51 +107,156 @@ class FGSMk(FGSM):
         super().__init__(layout, eps, victim, expert, steps)
 
 
-class LearnedAttack(Attack):
-    """ARIL-A at evaluation: ``delta ~ N(f(s), std)`` clipped to ±eps, drawn from the episode's rng
-    (``stochastic``, as the paper samples it), or the mean ``f(s)``. With ``eps`` other than the one it
-    was trained with, the whole perturbation is scaled by ``eps / trained eps`` (eps sweeps: the same
-    learned direction, a different budget)."""
+class QueryAttack(Attack):
+    """Base of the black-box attacks: they ask the victim for actions (any object with ``act``), never
+    for its weights, and the expert for its action on the true state (what the loss compares with).
+    ``queries`` counts the observations put to the victim, ``attacked`` the observations perturbed."""
+
+    def __init__(self, layout: ObsLayout, eps: float, victim, expert):
+        super().__init__(layout, eps)
+        self.victim, self.expert = victim, expert
+        self.queries = self.attacked = 0
+
+    def require_answers(self) -> None:
+        if self.victim is None or self.expert is None:
+            raise ValueError(f"attack {self.name} queries the victim's actions and the expert's: it needs both")
+
+    def ask(self, obs: np.ndarray) -> np.ndarray:
+        self.queries += len(obs)
+        return self.victim.act(obs)
+
+    def losses(self, true_obs: np.ndarray, candidates: np.ndarray, label: np.ndarray) -> np.ndarray:
+        """``||pi(s + delta) - pi_e(s)||^2`` of ``candidates[i, j]`` (deltas of observation i), in one query batch."""
+        n, m = candidates.shape[:2]
+        seen = (true_obs[:, None, :] + candidates).reshape(n * m, -1)
+        return ((self.ask(seen).reshape(n, m, -1) - label[:, None, :]) ** 2).sum(-1)
+
+    def perturb(self, true_obs, rngs):
+        self.attacked += len(true_obs)
+        return super().perturb(true_obs, rngs)
+
+    @property
+    def queries_per_step(self) -> float:
+        return self.queries / max(self.attacked, 1)
+
+
+class SPSA(QueryAttack):
+    """Black-box FGSM^k: the gradient of the one-step disagreement estimated from action queries alone.
+
+    ``k`` iterations; each draws ``samples`` Rademacher directions ``u`` on the zero-order entries from
+    the episode's rng, queries the loss at ``delta ± c u`` (``c = eps / 2``) and steps
+    ``delta <- clip(delta + alpha * sign(sum (L+ - L-) u))`` with ``alpha = 2.5 eps / k`` (so a consistent
+    sign reaches the box's corner); the iterate with the largest queried loss is kept. Queries per
+    step: ``1 + k (2 samples + 1)``.
+    """
+
+    name = "spsa"
+
+    def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 5, samples: int = 8):
+        super().__init__(layout, eps, victim, expert)
+        self.require_answers()
+        if steps < 1 or samples < 1:
+            raise ValueError(f"spsa needs steps >= 1 and samples >= 1, got {steps} and {samples}")
+        self.steps, self.samples = int(steps), int(samples)
+
+    def propose(self, true_obs, rngs):
+        n, n_pos, eps = len(true_obs), self.layout.n_position, self.eps
+        label = self.expert.act(true_obs)
+        delta = np.zeros_like(true_obs)
+        best, best_loss = delta, self.losses(true_obs, delta[:, None], label)[:, 0]
+        for _ in range(self.steps):
+            u = np.zeros((n, self.samples, true_obs.shape[1]))
+            for row, rng in enumerate(rngs):
+                u[row, :, :n_pos] = 2.0 * rng.integers(0, 2, (self.samples, n_pos)) - 1.0
+            probes = np.concatenate([delta[:, None] + 0.5 * eps * u, delta[:, None] - 0.5 * eps * u], axis=1)
+            loss = self.losses(true_obs, probes, label)
+            slope = ((loss[:, : self.samples] - loss[:, self.samples:])[:, :, None] * u).sum(1)
+            delta = self.project(delta + 2.5 * eps / self.steps * np.sign(slope))
+            loss = self.losses(true_obs, delta[:, None], label)[:, 0]
+            better = loss > best_loss
+            best, best_loss = np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
+        return best
+
+
+class LearnedAttack(QueryAttack):
+    """ARIL-A at evaluation: a perturbation drawn from the adversary given the true observation (and,
+    if it takes them, the victim's and the expert's actions on it), from the episode's rng
+    (``stochastic``, as the paper samples it), or the one it ranks highest.
+
+    With ``search = K > 0`` (query-time search) it draws K candidates, adds the one it ranks highest,
+    asks the victim for its actions on all K + 1 in one batch and applies the one with the largest
+    disagreement: the learned prior picks where to look, the queries pick the best. With ``eps`` other
+    than the one it was trained with, every perturbation is scaled by ``eps / trained eps`` (eps sweeps:
+    the same learned direction, a different budget). Queries per step: 1 if it takes actions, + K + 1."""
 
     name = "aril_a"
 
-    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True, eps: float | None = None):
-        super().__init__(layout, net.eps if eps is None else eps)
-        self.net, self.stochastic = net, stochastic
+    def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True, eps: float | None = None,
+                 victim=None, expert=None, search: int = 0):
+        super().__init__(layout, net.eps if eps is None else eps, victim, expert)
+        if search < 0:
+            raise ValueError(f"search must be >= 0 candidates, got {search}")
+        self.net, self.stochastic, self.search = net, stochastic, int(search)
+        if net.takes_actions or self.search:
+            self.require_answers()
         self.scale = self.eps / net.eps
-        self.std = net.log_std.detach().exp().double().numpy()
 
     @torch.inference_mode()
     def propose(self, true_obs, rngs):
-        blocks, n = in_blocks(true_obs)  # batch-invariant, like the policies
-        mean = torch.cat([self.net.mean(b) for b in blocks])[:n].double().numpy()
-        delta = np.zeros_like(true_obs)
-        delta[:, : self.layout.n_position] = mean
-        if self.stochastic:
+        n_pos = self.layout.n_position
+        label = self.expert.act(true_obs) if self.expert is not None else None
+        clean = self.ask(true_obs) if self.net.takes_actions else None
+        x = self.net.inputs(true_obs, clean, label)
+        blocks, n = in_blocks(x)  # batch-invariant, like the policies
+        dists = [self.net.distribution(b) for b in blocks]
+        draws = self.search or int(self.stochastic)
+        candidates = np.zeros((n, draws + 1, true_obs.shape[1]))
+        candidates[:, 0, :n_pos] = torch.cat([self.net.most_likely(d) for d in dists])[:n].double().numpy()
+        if draws:
+            candidates[:, 1:, :n_pos] = self.draws(dists, rngs, draws)
+        candidates *= self.scale
+        if not self.search:
+            return candidates[:, -1]
+        best = self.losses(true_obs, candidates, label).argmax(1)
+        return candidates[np.arange(n), best]
+
+    def draws(self, dists, rngs, k: int) -> np.ndarray:
+        """``k`` perturbations per row from the adversary's distribution, drawn from the row's rng."""
+        if self.net.categorical:
+            cumulative = torch.cat([d.probs for d in dists]).double().numpy().cumsum(-1)
+            out = np.empty((len(rngs), k, self.net.n_position))
             for row, rng in enumerate(rngs):
-                delta[row, : self.layout.n_position] += self.std * rng.standard_normal(len(self.std))
-        return delta * self.scale
+                choice = (rng.random((k, self.net.n_position))[..., None] >= cumulative[row, None, :, :2]).sum(-1)
+                out[row] = self.net.eps * (choice - 1.0)
+            return out
+        mean = torch.cat([d.mean for d in dists]).double().numpy()
+        std = self.net.log_std.detach().exp().double().numpy()
+        return np.stack([np.clip(mean[row] + std * rng.standard_normal((k, len(std))), -self.net.eps, self.net.eps)
+                         for row, rng in enumerate(rngs)])
 
 
-CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk)}
+CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk, SPSA)}
 
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
-                adversary: str | None = None, mode: str | None = None, rescale: bool = False) -> Attack:
-    """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; aril_a
-    needs an adversary file (default: the bundled one against the bundled learner; its eps is the one
-    it was trained with, unless ``rescale`` scales it to ``eps``)."""
+                adversary: str | None = None, mode: str | None = None, rescale: bool = False,
+                search: int = 0) -> Attack:
+    """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; spsa asks
+    both for actions only (``steps``: its iterations); aril_a needs an adversary file (default: the
+    bundled one against the bundled learner; its eps is the one it was trained with, unless
+    ``rescale`` scales it to ``eps``) and, when it takes actions or searches (``search`` candidates),
+    the victim and the expert to query."""
     check_name("attack", name, ATTACKS)
     if name == "aril_a":
-        return _learned_attack(layout, eps, adversary, mode, rescale)
-    if name in WHITE_BOX:
+        return _learned_attack(layout, eps, adversary, mode, rescale, victim, expert, search)
+    if name in WHITE_BOX or name in QUERY_ATTACKS:
         kwargs = {} if steps is None else {"steps": steps}
         return CLASSES[name](layout, eps, victim, expert, **kwargs)
     return CLASSES[name](layout, eps)
 
 
-def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: str | None,
-                    rescale: bool) -> LearnedAttack:
+def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: str | None, rescale: bool,
+                    victim, expert, search: int) -> LearnedAttack:
     if not adversary:
         bundled = adversary_path(layout.env_id, mode or "sensory")
         if not bundled.exists():
@@ -161,4 +266,5 @@ def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: 
     net = load_adversary(adversary, layout.env_id, mode)
     if eps and abs(eps - net.eps) > 1e-12 and not rescale:
         raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps} (rescale:=true scales it)")
-    return LearnedAttack(layout, net, eps=eps if eps and rescale else None)
+    return LearnedAttack(layout, net, eps=eps if eps and rescale else None, victim=victim, expert=expert,
+                         search=search)

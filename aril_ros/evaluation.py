@@ -8,7 +8,7 @@ import torch
 
 from . import seeds
 from .args import arg
-from .attacks import make_attack
+from .attacks import QueryAttack, make_attack
 from .envs import HORIZON, layout_of
 from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, attack_for_mode
@@ -28,7 +28,9 @@ class EvalConfig:
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
                           "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)")
-    k: int = arg(10, "steps of fgsm_k")
+    k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)")
+    search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
+                         "it ranks highest), the victim queried on all, the most damaging applied (0: no search)")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its own: scale its perturbation by eps / its eps")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
@@ -48,8 +50,8 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     policy = resolve_policy(cfg.policy, cfg.env, cfg.mode)
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
-                         expert=expert, steps=cfg.k if attack_name == "fgsm_k" else None,
-                         adversary=cfg.attack_file, mode=cfg.mode, rescale=cfg.rescale)
+                         expert=expert, steps=cfg.k or None,
+                         adversary=cfg.attack_file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     episodes = [EpisodeStats(e) for e in range(cfg.episodes)]
@@ -63,4 +65,5 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     summary = summarise_episodes(episodes)
     return {"env": cfg.env, "policy": cfg.policy, "expert": cfg.expert, "mode": cfg.mode, "attack": attack_name,
             "eps": engine.attack.eps, "seed": cfg.seed, **summary,
+            **({"queries_per_step": round(attack.queries_per_step, 2)} if isinstance(attack, QueryAttack) else {}),
             "steps_per_s": round(summary["steps"] / (time.time() - started), 1)}

@@ -26,11 +26,15 @@ DEFAULT_ENV = PAPER_ENVS[0]
 MODES = ("clean", "sensory", "physical")
 ATTACKED_MODES = ("sensory", "physical")
 
-ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "aril_a": "ARIL-A"}
+ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "spsa": "SPSA^k",
+           "aril_a": "ARIL-A"}
 """Every attack by name, with the name tables print."""
 WHITE_BOX = ("fgsm", "fgsm_k")
 """Attacks that need the victim's weights (gradients)."""
-THREATS = ("random", "fgsm", "fgsm_k", "aril_a")
+QUERY_ATTACKS = ("spsa",)
+"""Black-box attacks that always query the victim's actions (aril_a does when its adversary takes
+actions or searches)."""
+THREATS = ("random", "fgsm", "fgsm_k", "spsa", "aril_a")
 """The attacks a defense is judged under: its worst one is its figure in the defense tables."""
 
 DEFENSES = {"dagger": "DAgger", "gail": "GAIL", "dr": "DR", "dart": "DART", "aril": "ARIL", "bc": "BC"}
