@@ -97,8 +97,8 @@ class AdversaryNet(nn.Module):
 
     def delta(self, sample: torch.Tensor) -> torch.Tensor:
         """The perturbation of the zero-order entries a sample stands for, within ±eps."""
-        if self.categorical:
-            return self.eps * (sample - 1.0)
+        if self.categorical:  # in float64, so the corners are exactly ±eps
+            return self.eps * (sample.double() - 1.0)
         return sample.clamp(-self.eps, self.eps)
 
     def most_likely(self, dist: torch.distributions.Distribution) -> torch.Tensor:

@@ -61,3 +61,34 @@ def test_fgsm_is_white_box_and_its_gradient_batch_invariant(victim_expert):
     whole = victim.loss_gradient(obs, label)
     np.testing.assert_array_equal(whole[5], victim.loss_gradient(obs[5:6], label[5:6])[0])
     np.testing.assert_array_equal(whole[:7], victim.loss_gradient(obs[:7], label[:7]))
+
+
+class AnswersOnly:
+    """A black box: it answers ``act`` and refuses every other access (weights, gradients)."""
+
+    def __init__(self, policy):
+        object.__setattr__(self, "_policy", policy)
+
+    def act(self, obs):
+        return self._policy.act(obs)
+
+    def __getattr__(self, name):
+        raise AssertionError(f"a black-box attack reached for the victim's {name!r}")
+
+
+def test_spsa_is_black_box_bounded_and_near_fgsm(victim_expert):
+    victim, expert = victim_expert
+    layout = layout_of("HalfCheetah-v5")
+    obs = true_states("HalfCheetah-v5", seed=200)
+    rngs = lambda: [np.random.default_rng([3, i]) for i in range(len(obs))]  # noqa: E731
+    with pytest.raises(ValueError, match="spsa queries the victim's actions and the expert's"):
+        make_attack("spsa", layout, 0.2)
+    spsa = make_attack("spsa", layout, 0.2, AnswersOnly(victim), expert)
+    delta = spsa.perturb(obs, rngs())
+    np.testing.assert_array_equal(delta, spsa.perturb(obs, rngs()))  # seeded by the episodes' rngs
+    assert np.all(np.abs(delta) <= 0.2) and np.all(delta[:, ~layout.zero_order_mask] == 0)
+    assert spsa.queries_per_step == 1 + 5 * (2 * 8 + 1)
+    fgsm = make_attack("fgsm", layout, 0.2, victim, expert).perturb(obs, [None] * len(obs))
+    random = make_attack("random", layout, 0.2).perturb(obs, rngs())
+    gain = lambda d: (one_step_loss(victim, expert, obs, d) - one_step_loss(victim, expert, obs, 0 * d)).mean()  # noqa: E731
+    assert gain(delta) > 0.8 * gain(fgsm) and gain(delta) > 3 * gain(random), (gain(delta), gain(fgsm), gain(random))

@@ -34,11 +34,11 @@ def test_a_training_seed_collects_in_its_own_block_above_the_evaluations(seed):
 
 
 def test_names_are_defined_once_and_consistently():
-    assert set(registry.WHITE_BOX) <= set(registry.ATTACKS) and set(registry.THREATS) <= set(registry.ATTACKS)
+    assert set(registry.WHITE_BOX) | set(registry.QUERY_ATTACKS) <= set(registry.ATTACKS) and set(registry.THREATS) <= set(registry.ATTACKS)
     assert set(registry.PAPER_DEFENSES) <= set(registry.DEFENSES)
     assert set(registry.PER_MODE_POLICIES) <= set(registry.DEFENSES)
     assert registry.attack_for_mode("clean") == "none" and registry.attack_for_mode("sensory") == "random"
-    with pytest.raises(ValueError, match="unknown attack 'pgd'; choose one of none, random, fgsm, fgsm_k, aril_a"):
+    with pytest.raises(ValueError, match="unknown attack 'pgd'; choose one of none, random, fgsm, fgsm_k, spsa, aril_a"):
         registry.attack_for_mode("sensory", "pgd")
     with pytest.raises(ValueError, match="mode:=clean runs no attack"):
         registry.attack_for_mode("clean", "fgsm")
