@@ -5,8 +5,9 @@
   clean return. Its JSON is the bundled calibration (``aril_ros/data/eps_calibration.json``, what
   ``eps:=0`` reads), its markdown ``results/eps_calibration.md``.
 - :func:`attack_table` (``aril attack-table``): the paper's Table 1 (sensory) / Table 2 (physical)
-  *Adversary* rows — the victim's return clean and under random, FGSM, FGSM^k and ARIL-A at the
-  calibrated eps, mean ± std over deterministic episodes, and the drop from clean.
+  *Adversary* rows — the victim's return clean and under random, FGSM, FGSM^k, SPSA^k, ARIL-A and
+  ARIL-A with query-time search at the calibrated eps, mean ± std over deterministic episodes, the drop
+  from clean and, for the black-box attacks that query the victim, the queries per step.
 - :func:`defense_table` (``aril defense-table``): the *Robust IL* rows — each defense under its worst
   attack.
 
@@ -33,8 +34,11 @@ from .report.stats import summarise, worst_attack
 
 CALIBRATION_MARKDOWN = "results/eps_calibration.md"
 """Where ``aril calibrate-eps`` writes its table by default (its JSON: the bundled calibration)."""
-ATTACK_ROWS = ("none", *THREATS)
+SEARCH_ROW = "aril_a_search"
+"""ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
+ATTACK_ROWS = ("none", *THREATS, SEARCH_ROW)
 """The rows of the attack tables: clean, then each attack."""
+ROW_NAMES = {**ATTACKS, SEARCH_ROW: "ARIL-A + search"}
 
 
 def _cell(result: dict) -> dict:
@@ -148,7 +152,8 @@ class AttackTableConfig:
     calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration)")
     episodes: int = arg(20, "deterministic episodes per cell")
     seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)")
-    k: int = arg(10, "FGSM^k steps")
+    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
+    search: int = arg(16, "candidates of ARIL-A's query-time search in its own row (0: no such row)")
     adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet")
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")
@@ -169,49 +174,59 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
         ready_adversary(adversary, cfg.policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain, log)
         cells = {}
-        for attack in ATTACK_ROWS:
+        for row in ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]:
+            attack = "aril_a" if row == SEARCH_ROW else row
             result = evaluate(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                          mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                          eps=0.0 if attack == "none" else eps, k=cfg.k,
                                          attack_file=str(adversary) if attack == "aril_a" else "",
+                                         search=cfg.search if row == SEARCH_ROW else 0,
                                          episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon))
             cell = _cell(result)
             clean = cells["none"]["mean"] if attack != "none" else cell["mean"]
-            cells[attack] = {**cell, "episodes": cfg.episodes, "eps": result["eps"],
-                             "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
-                             "mean_expert_loss": result["mean_expert_loss"],
-                             "drop": round(1.0 - cell["mean"] / clean, 4) if clean else 0.0, **made}
+            cells[row] = {**cell, "episodes": cfg.episodes, "eps": result["eps"],
+                          "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
+                          "mean_expert_loss": result["mean_expert_loss"],
+                          "drop": round(1.0 - cell["mean"] / clean, 4) if clean else 0.0, **made}
+            if "queries_per_step" in result:
+                cells[row]["queries_per_step"] = result["queries_per_step"]
             if attack == "aril_a":
-                cells[attack]["adversary"] = load_adversary(adversary).meta["provenance"]
-            log(f"[attack-table {cfg.mode}] {env} {ATTACKS[attack]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
+                cells[row]["adversary"] = load_adversary(adversary).meta["provenance"]
+            log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[row]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
                 flush=True)
         fresh.append({"env": env, "cells": cells})
     rows = _merge(json_path, lambda r: (r["env"],), fresh,
                   lambda old: (old.get("mode"), old.get("victim")) == (cfg.mode, cfg.policy))
     envs = [r["env"] for r in rows]
     cells = {r["env"]: r["cells"] for r in rows}
+    shown = [a for a in ATTACK_ROWS if all(a in cells[e] for e in envs)]
     payload = {"mode": cfg.mode, "victim": cfg.policy, "rows": rows,
-               "overall_drop": {a: round(sum(cells[e][a]["drop"] for e in envs) / len(envs), 4)
-                                for a in ATTACK_ROWS}}
+               "overall_drop": {a: round(sum(cells[e][a]["drop"] for e in envs) / len(envs), 4) for a in shown}}
     _write(json_path, payload, md_path, attack_markdown(payload))
     return payload
 
 
 def attack_markdown(payload: dict) -> str:
-    """The Adversary rows: mean ± std per env and the drop from clean, the overall drop per attack."""
+    """The Adversary rows: mean ± std per env and the drop from clean, the overall drop per attack (the
+    rows every env has), and the queries per step of the attacks that query the victim."""
     envs = [r["env"] for r in payload["rows"]]
     cells = {r["env"]: r["cells"] for r in payload["rows"]}
     table = "Table 1" if payload["mode"] == "sensory" else "Table 2"
     lines = [f"# {table} ({payload['mode']} attacks), Adversary rows — victim: {payload['victim']}", "",
-             "Return, mean ± std over deterministic episodes, and the drop from clean; each cell's episodes, "
-             "seeds and command are in the JSON.", "",
-             "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs) + " | overall |",
-             "|---|" + "---|" * len(envs) + "---|"]
-    for attack in ATTACK_ROWS:
+             "Return, mean ± std over deterministic episodes, and the drop from clean; FGSM and FGSM^k are "
+             "white-box (the victim's gradients), the others black-box: SPSA^k and ARIL-A + search query the "
+             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation. "
+             "Each cell's episodes, seeds, adversary and command are in the JSON.", "",
+             "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs)
+             + " | overall | queries/step |",
+             "|---|" + "---|" * len(envs) + "---|---|"]
+    for attack in payload["overall_drop"]:
         row = [f"{cells[e][attack]['mean']:.0f} ± {cells[e][attack]['std']:.0f}"
                + ("" if attack == "none" else f" ({-100 * cells[e][attack]['drop']:+.1f}%)") for e in envs]
         overall = "0%" if attack == "none" else f"{-100 * payload['overall_drop'][attack]:+.1f}%"
-        lines.append(f"| {ATTACKS[attack]} | " + " | ".join(row) + f" | {overall} |")
+        queries = sorted({cells[e][attack].get("queries_per_step", 0) for e in envs})
+        lines.append(f"| {ROW_NAMES[attack]} | " + " | ".join(row) + f" | {overall} | "
+                     + ("–" if queries == [0] else " / ".join(f"{q:g}" for q in queries)) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -226,7 +241,7 @@ class DefenseTableConfig:
     calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration)")
     episodes: int = arg(20, "deterministic episodes per cell")
     seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)")
-    k: int = arg(10, "FGSM^k steps")
+    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
     adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense")
     adversary_dir: str = arg("", "where the adversaries against each defense go (default: the bundled ones, "
                                  "aril_ros/data/defense-adversary/); reused when they exist with the same eps")
@@ -236,8 +251,8 @@ class DefenseTableConfig:
 
 
 def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
-    """Each defense's return under the strongest of random, FGSM, FGSM^k and an ARIL-A trained against
-    that very defense; drops are from the clean DAgger learner's return (the paper's reference)."""
+    """Each defense's return under the strongest of random, FGSM, FGSM^k, SPSA^k and an ARIL-A trained
+    against that very defense; drops are from the clean DAgger learner's return (the paper's reference)."""
     made = stamp("aril defense-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/defenses_{cfg.mode}")
     defenses = comma_list(cfg.defenses)
@@ -301,7 +316,7 @@ def defense_markdown(payload: dict) -> str:
     shown = list(payload["overall_drop"])
     table = "Table 1" if payload["mode"] == "sensory" else "Table 2"
     lines = [f"# {table} ({payload['mode']} attacks), Robust IL rows", "",
-             "Each defense's return under the strongest of random, FGSM, FGSM^k and an ARIL-A trained against that "
+             "Each defense's return under the strongest of random, FGSM, FGSM^k, SPSA^k and an ARIL-A trained against that "
              "defense (in brackets), mean ± std over deterministic episodes; the drop is from the clean DAgger "
              "learner. Each cell's seeds, clean return, every attack's figure and the command are in the JSON.", "",
              "| defense | " + " | ".join(f"{e} (eps {by_env[e]['cells'][shown[0]]['eps']:g})" for e in envs)

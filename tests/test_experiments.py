@@ -20,14 +20,17 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
                                            adversary_dir=str(tmp_path), out=str(tmp_path / "attacks")), **QUIET)
     cells = table["rows"][0]["cells"]
-    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "aril_a"}
+    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "aril_a_search"}
+    assert cells["spsa"]["queries_per_step"] == 1 + 3 * (2 * 8 + 1)  # k:=3 iterations of 8 directions
+    assert cells["aril_a_search"]["queries_per_step"] == 1 + 16 + 1  # its input action, 16 draws, the likeliest
     assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
     assert cells["fgsm"]["eps"] == 0.5 and cells["none"]["eps"] == 0.0
     saved = json.loads((tmp_path / "attacks.json").read_text())
     assert all(c["command"].startswith("aril attack-table mode:=sensory")
                for c in saved["rows"][0]["cells"].values())
     assert cells["aril_a"]["adversary"]["steps"] >= 2000
-    assert "ARIL-A" in (tmp_path / "attacks.md").read_text()
+    markdown = (tmp_path / "attacks.md").read_text()
+    assert "| ARIL-A + search |" in markdown and "| 18 |" in markdown
     assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
 
 
