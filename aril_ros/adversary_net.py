@@ -84,9 +84,11 @@ class AdversaryNet(nn.Module):
         """Per zero-order entry: a categorical over the choice index, or a Normal over the perturbation."""
         out = self.mean_net(self.normalise(x))
         if self.categorical:
-            return torch.distributions.Categorical(logits=out.reshape(len(x), self.n_position, CHOICES))
+            # unvalidated: the samples are the distribution's own, and the checks cost more than the net
+            return torch.distributions.Categorical(logits=out.reshape(len(x), self.n_position, CHOICES),
+                                                   validate_args=False)
         mean = self.eps * torch.tanh(out)
-        return torch.distributions.Normal(mean, self.log_std.exp().expand(len(x), -1))
+        return torch.distributions.Normal(mean, self.log_std.exp().expand(len(x), -1), validate_args=False)
 
     def draw(self, dist: torch.distributions.Distribution, gen: torch.Generator) -> torch.Tensor:
         """A sample of ``dist`` from ``gen`` (choice indices, or perturbations before clipping)."""
