@@ -4,7 +4,9 @@ Every message of one control step carries the same header: ``stamp`` is the step
 ``frame_id`` is the step tag ``"<episode>/<step>"``, so a step's state, perturbation, observation,
 action, expert label and reward join on the tag without guessing. Sim time runs on across episodes
 (global step ``g`` has stamp ``g * dt``), so stamps and log times are monotonic over a whole run.
-msgs_doc/README.md is the human-readable form of this module.
+A query-based attack asks the policy about observations of its own (probes): they go out on
+``observation`` tagged ``"<episode>/<step>/probe/<k>"`` (:class:`ProbeTag`), which is no step tag, so
+the simulator never steps on their answers. msgs_doc/README.md is the human-readable form of this module.
 """
 from __future__ import annotations
 
@@ -23,6 +25,10 @@ CAMERA = "sim/camera/image/compressed"  # sensor_msgs/CompressedImage (JPEG), ev
 READY = "graph/ready"  # std_msgs/String, transient local: a node's name once all its endpoints are matched
 RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
 SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
+
+# Where a run log keeps the probes asked on a topic: apart from the step channels, so a step channel holds
+# exactly one message per step, and a replay republishes probes where no policy answers them.
+PROBE_CHANNELS = {OBSERVATION: "probe/observation", ACTION: "probe/action"}
 
 # What a step needs before it is complete, in the order the recorder writes it.
 STEP_TOPICS = (CLOCK, PHYSICS, STATE, PERTURBATION, OBSERVATION, ACTION, EXPERT_ACTION, REWARD)
@@ -61,6 +67,36 @@ class StepTag:
             return cls(int(episode), int(step))
         except ValueError:
             raise ValueError(f"not a step tag (want '<episode>/<step>'): {text!r}") from None
+
+
+@dataclass(frozen=True, order=True)
+class ProbeTag:
+    """The frame_id of a probe: the ``index``-th observation put to the policy during ``step`` only to
+    read its answer. It has four fields where a step tag has two, so :meth:`StepTag.parse` refuses it."""
+
+    step: StepTag
+    index: int
+
+    def __str__(self) -> str:
+        return f"{self.step}/probe/{self.index}"
+
+    @classmethod
+    def parse(cls, text: str) -> "ProbeTag":
+        try:
+            episode, step, mark, index = text.split("/")
+            if mark != "probe":
+                raise ValueError
+            return cls(StepTag(int(episode), int(step)), int(index))
+        except ValueError:
+            raise ValueError(f"not a probe tag (want '<episode>/<step>/probe/<k>'): {text!r}") from None
+
+
+def is_probe(frame_id: str) -> bool:
+    try:
+        ProbeTag.parse(frame_id)
+    except ValueError:
+        return False
+    return True
 
 
 def stamp_ns(global_step: int, dt: float) -> int:

@@ -15,7 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
-from aril_ros.protocol import StepTag
+from aril_ros.protocol import ProbeTag, StepTag
 
 STEP_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_ALL,
@@ -88,7 +88,7 @@ def joint_state(header, names, position=None, effort=None) -> JointState:
     return msg
 
 
-def step_header(tag: StepTag, stamp_ns: int):
+def step_header(tag: StepTag | ProbeTag, stamp_ns: int):
     from std_msgs.msg import Header
 
     header = Header()

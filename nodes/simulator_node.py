@@ -8,7 +8,8 @@ which needs ``MUJOCO_GL=egl`` or ``osmesa`` in the node's environment) and ``ren
 
 After ``sim/reset`` (seed, episode) it publishes step 0: ``/clock``, ``sim/physics_state`` and
 ``sim/state``. It steps only when the ``action`` tagged with the current step arrives (an action for
-any other step is ignored with a warning, so no step is skipped or repeated), publishes
+any other step is ignored with a warning, so no step is skipped or repeated; the answer to a probe,
+tagged ``"<episode>/<step>/probe/<k>"``, is ignored without one), publishes
 ``sim/reward`` for that step and then the next step's state, until the episode ends.
 ``sim/set_state`` replaces the whole physical state at once (the physical attack) and publishes the
 ``observation`` of the new state for the policy. A malformed action (wrong length, non-finite) stops
@@ -117,6 +118,8 @@ class SimulatorNode(Node):
         return response
 
     def on_action(self, msg) -> None:
+        if P.is_probe(msg.header.frame_id):
+            return  # a query-based attack's question to the policy, not the step's action
         try:
             tag = StepTag.parse(msg.header.frame_id)
         except ValueError as err:
