@@ -12,6 +12,11 @@ Foxglove:
 - log time = publish time = the step's sim time, so log times are monotonic and a player paces by
   sim time; each step's messages are written together, in ``STEP_TOPICS`` order, once the step is
   complete, and the file is flushed after every step (a killed run loses no complete step);
+- the probes of a query-based attack (observations put to the policy only to read its answer, tagged
+  ``"<episode>/<step>/probe/<k>"``) on channels of their own, ``/probe/observation`` and
+  ``/probe/action`` (:data:`aril_ros.protocol.PROBE_CHANNELS`), byte for byte as published on
+  ``observation`` and ``action``, right after their step at its log time, in the order asked; the step
+  channels hold the steps alone, and :func:`read_run` returns the probes beside them;
 - metadata ``aril_run`` (env, mode, attack, eps, seed, episodes, policy and expert provenance as
   JSON strings) at the start, and ``aril_run_end`` (steps, episodes completed, interrupted) at the
   end. A file without ``aril_run_end`` or without its summary was cut short: :func:`read_run`
@@ -32,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 
 from . import protocol as P
 from .dataset import DaggerDataset
-from .protocol import StepTag
+from .protocol import ProbeTag, StepTag
 from .step import StepArrays, missing_topics
 
 _TIME = "int32 sec\nuint32 nanosec\n"
@@ -87,31 +92,40 @@ class RunLogWriter:
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library="aril_ros")
-        schema_ids = {name: self._writer.register_schema(name, "ros2msg", text.encode())
-                      for name, text in SCHEMAS.items()}
-        self._channels = {
-            topic: self._writer.register_channel(
-                topic=_absolute(topic), message_encoding="cdr", schema_id=schema_ids[msg_type],
-                metadata={"offered_qos_profiles": QOS_YAML})
-            for topic, msg_type in {**P.MESSAGE_TYPES, **({P.CAMERA: P.CAMERA_TYPE} if camera else {})}.items()
-        }
+        self._schema_ids = {name: self._writer.register_schema(name, "ros2msg", text.encode())
+                            for name, text in SCHEMAS.items()}
+        self._channels = {}
+        for topic, msg_type in {**P.MESSAGE_TYPES, **({P.CAMERA: P.CAMERA_TYPE} if camera else {})}.items():
+            self._register(topic, msg_type)
         self._sequence = 0
         self._writer.add_metadata("aril_run", {k: _text(v) for k, v in run_metadata.items()})
         self.steps = 0
 
-    def write_step(self, stamp_ns: int, messages: dict[str, bytes]) -> None:
-        """Write one complete step (``{topic: cdr bytes}`` for every step topic) and flush it to disk."""
+    def write_step(self, stamp_ns: int, messages: dict[str, bytes], probes=()) -> None:
+        """Write one complete step (``{topic: cdr bytes}`` for every step topic), then its ``probes`` (each
+        ``{observation: cdr bytes, action: cdr bytes}``, in the order asked), and flush it to disk."""
         for topic in P.STEP_TOPICS:
-            self._sequence += 1
-            self._writer.add_message(self._channels[topic], log_time=stamp_ns, data=messages[topic],
-                                     publish_time=stamp_ns, sequence=self._sequence)
+            self._add(topic, stamp_ns, messages[topic])
+        for probe in probes:
+            for topic, channel in P.PROBE_CHANNELS.items():
+                if channel not in self._channels:  # only a run with probes has their channels
+                    self._register(channel, P.MESSAGE_TYPES[topic])
+                self._add(channel, stamp_ns, probe[topic])
         self._writer.flush()
         self.steps += 1
 
     def write_frame(self, stamp_ns: int, raw: bytes) -> None:
         """Write one camera frame (CDR ``CompressedImage``) at its step's sim time."""
+        self._add(P.CAMERA, stamp_ns, raw)
+
+    def _register(self, channel: str, msg_type: str) -> None:
+        self._channels[channel] = self._writer.register_channel(
+            topic=_absolute(channel), message_encoding="cdr", schema_id=self._schema_ids[msg_type],
+            metadata={"offered_qos_profiles": QOS_YAML})
+
+    def _add(self, channel: str, stamp_ns: int, raw: bytes) -> None:
         self._sequence += 1
-        self._writer.add_message(self._channels[P.CAMERA], log_time=stamp_ns, data=raw, publish_time=stamp_ns,
+        self._writer.add_message(self._channels[channel], log_time=stamp_ns, data=raw, publish_time=stamp_ns,
                                  sequence=self._sequence)
 
     def close(self, **end_metadata) -> None:
@@ -133,7 +147,7 @@ def _text(value) -> str:
 
 @dataclass
 class RunLog(StepArrays):
-    """A run log as arrays, one row per step in log order."""
+    """A run log as arrays, one row per step in log order; the probes one row per probe, in the order asked."""
 
     metadata: dict
     end: dict
@@ -142,10 +156,20 @@ class RunLog(StepArrays):
     terminated: np.ndarray
     truncated: np.ndarray
     physics_state: np.ndarray
+    probe_obs: np.ndarray
+    """the observations a query-based attack put to the policy"""
+    probe_action: np.ndarray
+    """the policy's answers to them"""
+    probe_row: np.ndarray
+    """the step (its row) each probe was asked during"""
 
     @property
     def episodes(self) -> np.ndarray:
         return np.array([t.episode for t in self.tags])
+
+    @property
+    def probes_per_step(self) -> np.ndarray:
+        return np.bincount(self.probe_row, minlength=len(self.tags))
 
 
 def _open_checked(path: Path):
@@ -185,12 +209,17 @@ def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
         steps: dict[StepTag, dict] = defaultdict(dict)
         order: list[StepTag] = []
         clock_by_stamp = {}
+        probes: dict[ProbeTag, dict] = defaultdict(dict)
+        probe_topics = {_absolute(channel): topic for topic, channel in P.PROBE_CHANNELS.items()}
         try:
-            step_topics = [_absolute(t) for t in P.STEP_TOPICS]  # camera frames are not part of a step
-            for _, channel, message, decoded in reader.iter_decoded_messages(topics=step_topics, log_time_order=False):
+            topics = [_absolute(t) for t in P.STEP_TOPICS] + list(probe_topics)  # camera frames are not read
+            for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics, log_time_order=False):
                 topic = channel.topic
                 if topic == P.CLOCK:
                     clock_by_stamp[message.log_time] = decoded
+                    continue
+                if topic in probe_topics:
+                    probes[ProbeTag.parse(decoded.header.frame_id)][probe_topics[topic]] = decoded
                     continue
                 tag = StepTag.parse(decoded.header.frame_id)
                 if tag not in steps:
@@ -199,10 +228,10 @@ def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
                 steps[tag]["stamp"] = message.log_time
         except Exception as err:
             raise RunLogError(f"{path}: damaged message data ({type(err).__name__}: {err})") from None
-    return _assemble(path, metadata["aril_run"], end, order, steps, clock_by_stamp)
+    return _assemble(path, metadata["aril_run"], end, order, steps, clock_by_stamp, probes)
 
 
-def _assemble(path, meta, end, order, steps, clock_by_stamp) -> RunLog:
+def _assemble(path, meta, end, order, steps, clock_by_stamp, probes) -> RunLog:
     for tag in order:
         have = {*steps[tag], *([P.CLOCK] if steps[tag]["stamp"] in clock_by_stamp else [])}
         missing = missing_topics(have)
@@ -217,6 +246,18 @@ def _assemble(path, meta, end, order, steps, clock_by_stamp) -> RunLog:
 
     def column(topic, field):
         return np.array([getattr(steps[tag][topic.lstrip("/")], field) for tag in order], dtype=np.float64)
+
+    row = {tag: i for i, tag in enumerate(order)}
+    for probe, halves in probes.items():
+        if probe.step not in row:
+            raise RunLogError(f"{path}: probe {probe} belongs to no step of the log")
+        if len(halves) < len(P.PROBE_CHANNELS):
+            raise RunLogError(f"{path}: probe {probe} misses its {', '.join(set(P.PROBE_CHANNELS) - set(halves))}")
+    asked = sorted(probes, key=lambda probe: (row[probe.step], probe.index))
+
+    def probe_column(topic, field, names):  # shaped by the run's names, so a run without probes has (0, n)
+        return np.array([getattr(probes[p][topic], field) for p in asked],
+                        dtype=np.float64).reshape(len(asked), len(json.loads(meta[names])))
 
     reward = column(P.REWARD, "position")
     return RunLog(
@@ -233,6 +274,9 @@ def _assemble(path, meta, end, order, steps, clock_by_stamp) -> RunLog:
         terminated=reward[:, 1].astype(bool) if len(order) else np.zeros(0, bool),
         truncated=reward[:, 2].astype(bool) if len(order) else np.zeros(0, bool),
         physics_state=column(P.PHYSICS, "position"),
+        probe_obs=probe_column(P.OBSERVATION, "position", "obs_names"),
+        probe_action=probe_column(P.ACTION, "effort", "action_names"),
+        probe_row=np.array([row[p.step] for p in asked], dtype=np.int64),
     )
 
 
@@ -244,12 +288,14 @@ def _maybe_json(text: str):
 
 
 def recover(path: str | Path, out: str | Path) -> int:
-    """Rewrite the complete steps of a cut-short run log into a valid one; returns how many."""
+    """Rewrite the complete steps of a cut-short run log (with their probes) into a valid one; returns how many."""
     path, out = Path(path), Path(out)
     _open_checked(path)
     metadata: dict[str, dict] = {}
     channels: dict[int, str] = {}
-    pending: dict[tuple[int, str], dict[str, bytes]] = defaultdict(dict)
+    pending: dict[int, dict[str, bytes]] = defaultdict(dict)
+    probes: dict[int, dict[ProbeTag, dict[str, bytes]]] = defaultdict(lambda: defaultdict(dict))
+    probe_topics = {_absolute(channel): topic for topic, channel in P.PROBE_CHANNELS.items()}
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f, skip_magic=False).records:
@@ -258,6 +304,9 @@ def recover(path: str | Path, out: str | Path) -> int:
                     metadata[record.name] = dict(record.metadata)
                 elif kind == "Channel":
                     channels[record.id] = record.topic
+                elif kind == "Message" and channels[record.channel_id] in probe_topics:  # several per log time
+                    probe = ProbeTag.parse(cdr_header(record.data)[1])
+                    probes[record.log_time][probe][probe_topics[channels[record.channel_id]]] = record.data
                 elif kind == "Message":
                     pending[record.log_time][channels[record.channel_id]] = record.data
         except Exception:  # the cut: everything before it has been collected
@@ -269,7 +318,8 @@ def recover(path: str | Path, out: str | Path) -> int:
     for stamp in sorted(pending):
         messages = {t: pending[stamp][_absolute(t)] for t in P.STEP_TOPICS if _absolute(t) in pending[stamp]}
         if not missing_topics(messages):
-            writer.write_step(stamp, messages)
+            asked = probes[stamp]  # a probe cut in half is dropped, its step kept
+            writer.write_step(stamp, messages, [asked[p] for p in sorted(asked) if len(asked[p]) == len(probe_topics)])
             if camera in pending[stamp]:
                 writer.write_frame(stamp, pending[stamp][camera])
     writer.close(interrupted=True, reason=f"recovered from {path.name}")
