@@ -1,11 +1,16 @@
 """Attacker node: perturbs the zero-order state within ±eps, as the mode says.
 
 Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random | fgsm |
-fgsm_k | aril_a), ``eps``, ``seed``; for the white-box attacks ``victim`` (the attacked policy: a
-bundled name or a file), ``expert`` and ``k`` (fgsm_k steps); for aril_a ``attack_file`` (an
-adversary file: black-box, so it can attack any policy node, an external one included). ``eps`` 0
+fgsm_k | spsa | aril_a), ``eps``, ``seed``, ``expert`` (the label of fgsm, fgsm_k, spsa and aril_a: the
+testbed's own file, loaded here), ``k`` (steps of fgsm_k and spsa; 0: the attack's default); for the
+white-box attacks ``victim`` (the attacked policy: a bundled name or a file); for aril_a ``attack_file``
+(an adversary file) and ``search`` (query-time search over this many candidates; 0: none). ``eps`` 0
 takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
 :func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations.
+
+The black-box attacks (spsa; aril_a when its adversary takes actions or searches) ask the policy node
+itself, whichever it is: their victim is a :class:`aril_ros_nodes.remote_policy.RemotePolicy` that
+publishes probes on ``observation`` and waits for their tagged ``action`` inside this node's step.
 
 - clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation``
   (:func:`aril_ros.step.sensory_observation`: state + delta).
@@ -20,6 +25,7 @@ import numpy as np
 import torch
 from rcl_interfaces.srv import SetParametersAtomically
 from rclpy.node import Node
+from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from aril_ros import protocol as P
@@ -27,10 +33,11 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import StepTag
-from aril_ros.registry import DEFAULT_ENV, WHITE_BOX, attack_budget, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, QUERY_ATTACKS, WHITE_BOX, attack_budget, attack_for_mode
 from aril_ros.step import episode_rng, physical_state, sensory_observation
 from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
                                    param_msg, publishers, subscribers)
+from aril_ros_nodes.remote_policy import RemotePolicy, RemotePolicyError
 
 
 class AttackerNode(Node):
@@ -45,12 +52,15 @@ class AttackerNode(Node):
         if white_box and not victim_name:
             raise ValueError(f"attack {attack} is white-box: set the victim parameter to the attacked policy")
         env_id = self.layout.env_id
+        # spsa always asks the policy node; aril_a does when its adversary takes actions or it searches
+        self.probes = (RemotePolicy(env_id, connect_timeout=None, name="attacker_probes")
+                       if attack in (*QUERY_ATTACKS, "aril_a") else None)
         self.attack = make_attack(
             attack, self.layout, attack_budget(env_id, self.mode, attack, declared(self, "eps", 0.0)),
-            victim=resolve_policy(victim_name, env_id, self.mode) if white_box else None,
-            expert=resolve_policy(expert_name, env_id) if white_box else None,
-            steps=declared(self, "k", 10) if attack == "fgsm_k" else None,
-            adversary=declared(self, "attack_file", ""), mode=self.mode)
+            victim=resolve_policy(victim_name, env_id, self.mode) if white_box else self.probes,
+            expert=resolve_policy(expert_name, env_id) if white_box or self.probes is not None else None,
+            steps=declared(self, "k", 0) or None, adversary=declared(self, "attack_file", ""), mode=self.mode,
+            search=declared(self, "search", 0))
         self.seed = declared(self, "seed", 0)
         self.rng = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)
@@ -67,6 +77,8 @@ class AttackerNode(Node):
         else:
             self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
             ready["2 subscribers on observation (the policy, the recorder)"] = subscribers(self.observation_pub, 2)
+        if self.probes is not None:  # the policy answers the probes, the recorder records them
+            ready.update(self.probes.checks(listeners=2))
         self.ready = ReadyAnnouncer(self, ready)
         self.get_logger().info(f"{self.mode} attack {self.attack.name} eps={self.attack.eps}")
 
@@ -75,7 +87,12 @@ class AttackerNode(Node):
         if tag.step == 0:  # a (re)started episode draws its noise from the start again
             self.rng = episode_rng(self.seed, tag.episode)
         true_obs = np.asarray(state.position, dtype=np.float64)
-        return true_obs, self.attack.perturb(true_obs[None], [self.rng])[0]
+        if self.probes is not None:
+            self.probes.begin_step(tag, Time.from_msg(state.header.stamp).nanoseconds)
+        try:
+            return true_obs, self.attack.perturb(true_obs[None], [self.rng])[0]
+        except RemotePolicyError as err:  # the policy node stopped answering probes, or answered nonsense
+            raise FatalNodeError(f"step {tag}: {err}") from None
 
     def on_state(self, msg: JointState) -> None:
         if self.mode == "physical":
@@ -107,6 +124,11 @@ class AttackerNode(Node):
         if not result.successful:
             raise FatalNodeError(f"sim/set_state refused step {header.frame_id}: {result.reason}")
         self.perturbation_pub.publish(joint_state(header, self.layout.names, delta))
+
+    def destroy_node(self):
+        if self.probes is not None:
+            self.probes.close()
+        super().destroy_node()
 
 
 def main(args=None):

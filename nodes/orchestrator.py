@@ -4,8 +4,9 @@ It stands in for ``ros2 launch`` and ``ros2 bag record``: each node is its own p
 (``python -m aril_ros_nodes.<name>_node --ros-args ...``, from the installed package) in a ROS domain
 of its own; the orchestrator's node resets the simulator at each episode start (env seed
 :func:`aril_ros.step.episode_seed`), records every step topic (raw CDR, see :mod:`aril_ros.mcap_log`)
-once the step is complete (:func:`aril_ros.step.missing_topics`), prints per-episode figures and one
-JSON summary line (:class:`aril_ros.step.EpisodeStats`), and stops every node on success, on Ctrl-C /
+once the step is complete (:func:`aril_ros.step.missing_topics`) and its probes answered, prints
+per-episode figures and one JSON summary line (:class:`aril_ros.step.EpisodeStats`; ``queries_per_step``:
+probes answered per step), and stops every node on success, on Ctrl-C /
 SIGTERM, when a node dies (naming it and its last error) and when a step makes no progress for
 ``step_timeout`` seconds.
 """
@@ -27,15 +28,15 @@ import numpy as np
 
 from aril_ros import __version__
 from aril_ros import protocol as P
+from aril_ros.adversary_net import load_adversary
 from aril_ros.args import arg
-from aril_ros.attacks import make_attack
 from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.policy import resolve_policy
-from aril_ros.protocol import StepTag
+from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.provenance import git_revision
 from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MODES,
-                               PER_MODE_POLICIES, WHITE_BOX, attack_budget, attack_for_mode)
+                               PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
 from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_episodes
 
 NODE_MODULES = {name: f"aril_ros_nodes.{name}_node" for name in ("simulator", "attacker", "policy", "expert")}
@@ -51,8 +52,10 @@ class GraphConfig:
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one "
                           "for env and mode, bundled with aril_ros; aril_a: its adversary's)")
-    k: int = arg(10, "steps of fgsm_k")
+    k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
+    search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
+                         "node asked about all (probes), the most damaging applied (0: no search)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
     seed: int = arg(0, "seed of the first episode and of the attack noise")
     policy: str = arg("bundled", f"bundled (the default bundled policy: the {DEFENSES[DEFAULT_POLICY]} learner), "
@@ -135,11 +138,12 @@ class Orchestrator:
         self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
         if self.attack in WHITE_BOX and cfg.policy == "external":
             raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
-                             "policy can be attacked with attack:=random")
+                             "policy can be attacked with a black-box one: "
+                             + ", ".join(a for a in ATTACKS if a not in (*WHITE_BOX, "none")))
         self.layout = layout_of(cfg.env)
         self.eps = attack_budget(cfg.env, cfg.mode, self.attack, cfg.eps)
-        if self.attack == "aril_a":  # a missing or mismatched adversary file is reported before any process starts
-            self.eps = make_attack("aril_a", self.layout, 0.0, adversary=cfg.attack_file, mode=cfg.mode).eps
+        if self.attack == "aril_a":  # its file's eps; a missing or mismatched file is reported before anything starts
+            self.eps = load_adversary(cfg.attack_file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode).eps
         # load both now: a bad file is reported before any process starts
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
@@ -161,7 +165,7 @@ class Orchestrator:
             "simulator": {**common, "horizon": cfg.horizon,
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
-                         "k": cfg.k, "expert": expert,
+                         "k": cfg.k, "search": cfg.search, "expert": expert,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
             "expert": {"env": cfg.env, "expert": expert},
@@ -285,6 +289,7 @@ class Orchestrator:
         return {
             "mode": self.cfg.mode, "env": self.cfg.env, "attack": self.attack, "eps": self.eps,
             "episodes": figures.pop("episodes"), "seed": self.cfg.seed, "policy": self.cfg.policy, **figures,
+            "queries_per_step": round(recorder.probes_answered / max(figures["steps"], 1), 2),
             "steps_per_s": round(figures["steps"] / seconds, 1),
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
@@ -303,7 +308,8 @@ PRODUCERS = {P.CLOCK: "simulator", P.STATE: "simulator", P.PHYSICS: "simulator",
 
 
 class StepRecorder:
-    """Collects each step's raw messages by step tag; writes a step once it is complete, in order."""
+    """Collects each step's raw messages by step tag, and the probes asked during it by probe tag; writes a
+    step with its probes once it is complete, in order."""
 
     def __init__(self, writer: RunLogWriter | None):
         self.writer = writer
@@ -317,6 +323,8 @@ class StepRecorder:
         self.frames: dict[StepTag, tuple[int, bytes]] = {}  # camera frames whose step is not written yet
         self.last_written: StepTag | None = None
         self.frames_written = 0
+        self.probes: dict[StepTag, dict[ProbeTag, dict[str, bytes]]] = {}  # of the steps not written yet
+        self.probes_answered = 0
 
     def start_episode(self, episode: int) -> None:
         self.episode, self.episode_done = episode, False
@@ -341,21 +349,32 @@ class StepRecorder:
             self.clock[cdr_stamp(raw)] = raw
         else:
             stamp, frame_id = cdr_header(raw)
-            tag = StepTag.parse(frame_id)
-            if tag not in self.pending:
-                self.pending[tag] = {}
-                self.order.append(tag)
-            self.pending[tag][topic] = raw
-            if topic == P.STATE:
-                self.stamp[tag] = stamp
+            if P.is_probe(frame_id):  # a query-based attack's question to the policy, or the answer
+                probe = ProbeTag.parse(frame_id)
+                if self.last_written is None or probe.step > self.last_written:  # else a late repeat of a probe
+                    self.probes.setdefault(probe.step, {}).setdefault(probe, {})[topic] = raw
+            else:
+                tag = StepTag.parse(frame_id)
+                if tag not in self.pending:
+                    self.pending[tag] = {}
+                    self.order.append(tag)
+                self.pending[tag][topic] = raw
+                if topic == P.STATE:
+                    self.stamp[tag] = stamp
         self.flush()
 
     def arrived(self, tag: StepTag) -> set[str]:
         """The step topics of ``tag`` heard so far (its ``/clock`` joins it by the state's stamp)."""
         return {*self.pending[tag], *([P.CLOCK] if self.stamp.get(tag) in self.clock else [])}
 
+    def half_heard(self, tag: StepTag) -> int:
+        """Probes of ``tag`` heard on one of observation and action only. The policy answers a step's probes
+        before it acts, on one publisher, so once the step's action is in so is every probe's answer; but a
+        probe's observation comes from another publisher (the attacker's probe client) and may still be on its way."""
+        return sum(len(probe) < len(P.PROBE_CHANNELS) for probe in self.probes.get(tag, {}).values())
+
     def complete(self, tag: StepTag) -> bool:
-        return not missing_topics(self.arrived(tag))
+        return not missing_topics(self.arrived(tag)) and not self.half_heard(tag)
 
     def flush(self) -> None:
         from rclpy.serialization import deserialize_message
@@ -366,8 +385,11 @@ class StepRecorder:
             msgs = self.pending.pop(tag)
             stamp = self.stamp.pop(tag)
             msgs[P.CLOCK] = self.clock.pop(stamp)
+            asked = self.probes.pop(tag, {})
+            probes = [asked[probe] for probe in sorted(asked)]
             if self.writer is not None:
-                self.writer.write_step(stamp, msgs)
+                self.writer.write_step(stamp, msgs, probes)
+            self.probes_answered += len(probes)
             self.last_written = tag
             if tag in self.frames:
                 self._write_frame(*self.frames.pop(tag))
@@ -387,8 +409,10 @@ class StepRecorder:
     def missing_text(self) -> str:
         if not self.order:
             return f"no {P.STATE} from the simulator"
-        missing = missing_topics(self.arrived(self.order[0]))
-        return "waiting for " + ", ".join(f"{t} ({PRODUCERS[t]})" for t in missing)
+        missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(self.order[0]))]
+        if self.half_heard(self.order[0]):
+            missing.append(f"{self.half_heard(self.order[0])} probes' observation or answer (attacker, policy)")
+        return "waiting for " + ", ".join(missing)
 
 
 class GraphClient:
