@@ -45,7 +45,7 @@ def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, 
     from aril_ros.report.tables import table_cells
 
     returns = {"none": [100.0, 104.0], "random": [90.0, 80.0], "fgsm": [50.0, 70.0], "fgsm_k": [61.0, 57.0],
-               "aril_a": [75.0, 65.0]}
+               "spsa": [66.0, 62.0], "aril_a": [75.0, 65.0]}
     monkeypatch.setattr(experiments, "evaluate", lambda cfg: {"returns": returns[cfg.attack or "none"],
                                                               "eps": cfg.eps, "mean_expert_loss": 0.0})
     monkeypatch.setattr(experiments, "ready_adversary", lambda *a, **k: None)
@@ -79,7 +79,7 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
     figures = tmp_path / "docs" / "results"
     payload = json.loads((figures / "report.json").read_text())
     # 5 defenses x (clean + 4 attacks + 4 sweep attacks x 2 scales)
-    assert len(payload["evaluations"]) == 5 * (5 + 4 * 2)
+    assert len(payload["evaluations"]) == 5 * (6 + 5 * 2)
     for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
                 "DART", "ARIL"):
         assert f"| {row} |" in text
@@ -94,8 +94,8 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
     assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
     logged.clear()
     build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-    assert any("65 evaluations: 65 cached, 0 to run" in line for line in logged)
-    assert "distinct evaluations" not in text and "0 of 65 distinct evaluations run here" in out.read_text()
+    assert any("80 evaluations: 80 cached, 0 to run" in line for line in logged)
+    assert "distinct evaluations" not in text and "0 of 80 distinct evaluations run here" in out.read_text()
     assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 
