@@ -15,7 +15,7 @@ What it runs, in order (:func:`build_report`), and the room of this package that
    trainings side by side (each on one thread; a finished file is kept, so an interrupted run resumes).
    A missing or failed one makes its cells say why.
 3. **Evaluations** (``jobs``), ``workers`` at a time in spawned processes: every policy clean and under
-   random, FGSM, FGSM^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks
+   random, FGSM, FGSM^k, SPSA^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks
    at multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps), episodes from
    ``seeds.DEFENSE_TABLE``. Each evaluation is cached in ``<work_dir>/cache/`` under a key of its
    arguments and the files' digests, so an interrupted report resumes and a changed policy is evaluated again.

@@ -155,7 +155,8 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
         "bundled policy); deterministic policies, evaluation env seeds " + payload["episode_seeds"] + ".",
         "- Each cell: mean ± the half-width of a 95% Student-t interval (over the training seeds' means when there "
         "are several, else over the episodes); in brackets the drop from clean DAgger and, for a defense, the attack "
-        "that hurt it most among random, FGSM, FGSM^k (10 steps) and an ARIL-A trained against that very defense.",
+        "that hurt it most among random, FGSM, FGSM^k (10 steps), SPSA^k (black-box, 5 steps) and an ARIL-A trained "
+        "against that very defense.",
         "- eps per env and mode: the calibrated one (`aril_ros/data/eps_calibration.json`, made by "
         "`aril calibrate-eps`).", "",
     ]
