@@ -1,0 +1,214 @@
+"""Query-based attacks through the graph: their probes go to the policy node and back on the step topics, are
+recorded as probes, and never change the trajectory. The graph runs use the helpers of test_graph."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from aril_ros import protocol as P
+from aril_ros.attacks import make_attack
+from aril_ros.envs import MujocoSim, layout_of
+from aril_ros.mcap_log import RunLogWriter, read_run, recover
+from aril_ros.policy import load_policy
+from aril_ros.protocol import ProbeTag, StepTag
+from aril_ros.rollout import RolloutEngine
+from tests.test_graph import COMPARED, free_domain, policy_files, ros_env, run_graph, run_with_external, summary_of
+
+
+def test_a_probe_tag_names_its_step_and_is_no_step_tag():
+    probe = ProbeTag(StepTag(3, 127), 5)
+    assert str(probe) == "3/127/probe/5" and ProbeTag.parse("3/127/probe/5") == probe
+    assert P.is_probe("3/127/probe/5") and not P.is_probe("3/127") and not P.is_probe("3/127/probe/x")
+    with pytest.raises(ValueError, match="not a step tag"):
+        StepTag.parse(str(probe))
+    with pytest.raises(ValueError, match="not a probe tag"):
+        ProbeTag.parse("3/127")
+
+
+def message_counts(log) -> dict[str, int]:
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as f:
+        summary = make_reader(f).get_summary()
+    return {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+
+
+# aril_a's sensory probes without search: test_graph's graph≡engine test (its adversary takes actions)
+@pytest.mark.parametrize("mode, attack", [("sensory", "spsa"), ("physical", "spsa"), ("physical", "aril_a")])
+def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, tmp_path):
+    from aril_ros.adversary import AdversaryConfig, train_adversary
+
+    env_id, horizon = "Swimmer-v5", 25
+    policy, expert = policy_files(tmp_path, env_id)
+    adversary = None
+    if attack == "aril_a":  # takes the victim's and the expert's actions (1 probe), and searches (4 + 1 more)
+        adversary = str(train_adversary(AdversaryConfig(env=env_id, mode=mode, eps=0.1, victim=str(policy),
+                                                        expert=str(expert), steps=0, out=str(tmp_path / "adv.pt")),
+                                        log=lambda *a, **k: None))
+    log = tmp_path / "run.mcap"
+    knobs = ("k:=2",) if attack == "spsa" else (f"attack_file:={adversary}", "search:=4")
+    summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
+                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", f"horizon:={horizon}", "seed:=4",
+                                   f"record:={log}", *knobs))
+    victim, labeller = load_policy(policy), load_policy(expert)
+    engine_attack = make_attack(attack, layout_of(env_id), 0.1, victim=victim, expert=labeller,
+                                steps=2 if attack == "spsa" else None, adversary=adversary, mode=mode,
+                                search=4 if attack == "aril_a" else 0)
+    traj = RolloutEngine(env_id, victim, labeller, engine_attack, mode, n_envs=2, horizon=horizon).rollout(2, seed=4)
+    run = read_run(log)
+    for e in range(2):
+        rows = run.episodes == e
+        assert rows.sum() == traj.length[e]
+        for name in COMPARED:
+            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
+                                          err_msg=f"{name}, episode {e}")
+    # every step asked as many probes as the engine's attack did, and the summary says so
+    assert engine_attack.queries_per_step == (35 if attack == "spsa" else 6)
+    assert (run.probes_per_step == engine_attack.queries_per_step).all()
+    assert summary["queries_per_step"] == engine_attack.queries_per_step
+    # probes are the policy's answers, kept apart: the step's action is the one applied, on what the policy saw
+    np.testing.assert_array_equal(run.probe_action, victim.act(run.probe_obs))
+    np.testing.assert_array_equal(run.action, victim.act(run.obs))
+    first = np.concatenate([[0], np.cumsum(run.probes_per_step)[:-1]])
+    np.testing.assert_array_equal(run.probe_obs[first], run.true_obs)  # each step first asks about the true state
+    counts = message_counts(log)
+    assert counts["/observation"] == counts["/action"] == len(run.tags)
+    assert counts["/probe/observation"] == counts["/probe/action"] == len(run.probe_row)
+
+
+def test_an_external_policy_node_is_attacked_by_queries_alone(tmp_path):
+    summary = summary_of(run_with_external("good", tmp_path, "attack:=spsa", "k:=1", "horizon:=10"))
+    run = read_run(tmp_path / "run.mcap")
+    assert summary["steps"] == 10 and summary["queries_per_step"] == 18  # 1 + k (2 * 8 samples + 1)
+    np.testing.assert_array_equal(run.action, np.tanh(0.5 * run.obs[:, :6]))
+    np.testing.assert_array_equal(run.probe_action, np.tanh(0.5 * run.probe_obs[:, :6]))
+    assert np.abs(run.delta).max() == pytest.approx(0.1)
+
+
+def test_the_simulator_never_steps_on_a_probe():
+    """A probe's answer tagged with the current step, even a malformed one, neither steps nor stops it."""
+    import rclpy
+    from rcl_interfaces.srv import SetParametersAtomically
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+
+    from aril_ros_nodes.common import STEP_QOS, joint_state, param_msg, step_header
+
+    domain = free_domain()
+    sim = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.simulator_node", "--ros-args", "-p",
+                            "env:=Swimmer-v5"], env=ros_env(domain), stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    context = rclpy.Context()
+    rclpy.init(args=[], context=context)
+    node = rclpy.create_node("prober", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    heard: dict[str, JointState] = {}
+    node.create_subscription(JointState, P.STATE, lambda m: heard.setdefault(m.header.frame_id, m), STEP_QOS)
+    rewards = node.create_subscription(JointState, P.REWARD, lambda m: heard.setdefault("reward", m), STEP_QOS)
+    actions = node.create_publisher(JointState, P.ACTION, STEP_QOS)
+    reset = node.create_client(SetParametersAtomically, P.RESET_SERVICE)
+
+    def spin_until(done, seconds):
+        deadline = time.monotonic() + seconds
+        while not done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+
+    try:
+        spin_until(lambda: reset.service_is_ready() and actions.get_subscription_count() and
+                   rewards.get_publisher_count(), 30)
+        request = SetParametersAtomically.Request()
+        request.parameters = [param_msg("seed", 3), param_msg("episode", 0)]
+        future = reset.call_async(request)
+        spin_until(future.done, 10)
+        assert future.result().result.successful
+        probe = step_header(ProbeTag(StepTag(0, 0), 0), 0)
+        actions.publish(joint_state(probe, ["a", "b"], effort=[1.0, -1.0]))
+        actions.publish(joint_state(probe, ["a"], effort=[float("nan")]))  # would stop it, were it the step's
+        spin_until(lambda: "reward" in heard, 1.0)
+        assert "reward" not in heard and sim.poll() is None
+        action = np.array([0.3, -0.2])
+        actions.publish(joint_state(step_header(StepTag(0, 0), 0), ["a", "b"], effort=action))
+        spin_until(lambda: "0/1" in heard, 10)
+        reference = MujocoSim("Swimmer-v5")
+        reference.reset(3)
+        obs, reward, _, _ = reference.step(action)
+        reference.close()
+        assert heard["reward"].position[0] == reward
+        np.testing.assert_array_equal(heard["0/1"].position, obs)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+
+
+def cdr(header, names, **values) -> bytes:
+    from rclpy.serialization import serialize_message
+
+    from aril_ros_nodes.common import joint_state
+
+    return serialize_message(joint_state(header, names, **values))
+
+
+def step_messages(tag: StepTag, stamp: int, done: bool) -> dict[str, bytes]:
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+
+    from aril_ros_nodes.common import step_header
+
+    header = step_header(tag, stamp)
+    state = [float(tag.step), 1.0]
+    return {P.CLOCK: serialize_message(Clock(clock=header.stamp)), P.PHYSICS: cdr(header, ["q"], position=[0.0]),
+            P.STATE: cdr(header, ["x", "y"], position=state), P.PERTURBATION: cdr(header, ["x", "y"], position=[0, 0]),
+            P.OBSERVATION: cdr(header, ["x", "y"], position=state), P.ACTION: cdr(header, ["u"], effort=[0.5]),
+            P.EXPERT_ACTION: cdr(header, ["u"], effort=[0.0]),
+            P.REWARD: cdr(header, P.REWARD_NAMES, position=[1.0, 0.0, float(done)])}
+
+
+def probe_messages(probe: ProbeTag, stamp: int) -> dict[str, bytes]:
+    from aril_ros_nodes.common import step_header
+
+    header = step_header(probe, stamp)
+    return {P.OBSERVATION: cdr(header, ["x", "y"], position=[9.0, float(probe.index)]),
+            P.ACTION: cdr(header, ["u"], effort=[-float(probe.index)])}
+
+
+def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_keeps_them_apart(tmp_path):
+    from aril_ros_nodes.orchestrator import StepRecorder
+
+    writer = RunLogWriter(tmp_path / "run.mcap", {"env": "test", "obs_names": ["x", "y"], "action_names": ["u"]})
+    recorder = StepRecorder(writer)
+    recorder.start_episode(0)
+    first, second = (StepTag(0, 0), 0), (StepTag(0, 1), 50_000_000)
+    probes = [probe_messages(ProbeTag(first[0], k), first[1]) for k in range(2)]
+    for k in (1, 0):  # the policy's answers precede the step's action; one probe's observation comes late
+        recorder.on_message(P.ACTION, probes[k][P.ACTION])
+    recorder.on_message(P.OBSERVATION, probes[0][P.OBSERVATION])
+    for topic, raw in step_messages(*first, done=False).items():
+        recorder.on_message(topic, raw)
+    assert recorder.steps_written == 0 and "1 probes' observation or answer" in recorder.missing_text()
+    recorder.on_message(P.OBSERVATION, probes[1][P.OBSERVATION])
+    assert recorder.steps_written == 1 and recorder.probes_answered == 2
+    recorder.on_message(P.OBSERVATION, probes[1][P.OBSERVATION])  # asked again after its step was written
+    for topic, raw in step_messages(*second, done=True).items():
+        recorder.on_message(topic, raw)
+    assert recorder.steps_written == 2 and recorder.probes_answered == 2 and recorder.episode_done
+    writer.close(interrupted=False)
+    assert recover(tmp_path / "run.mcap", tmp_path / "recovered.mcap") == 2
+    for log in (tmp_path / "run.mcap", tmp_path / "recovered.mcap"):
+        run = read_run(log, allow_interrupted=True)
+        np.testing.assert_array_equal(run.obs, [[0.0, 1.0], [1.0, 1.0]])  # the steps, as without probes
+        np.testing.assert_array_equal(run.action, [[0.5], [0.5]])
+        np.testing.assert_array_equal(run.probes_per_step, [2, 0])
+        np.testing.assert_array_equal(run.probe_obs, [[9.0, 0.0], [9.0, 1.0]])
+        np.testing.assert_array_equal(run.probe_action, [[0.0], [-1.0]])
+        assert message_counts(log)["/probe/action"] == 2
