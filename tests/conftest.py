@@ -21,3 +21,16 @@ def random_policy(env_id: str, seed: int = 0, hidden=(32, 32)) -> MLPPolicy:
 @pytest.fixture
 def make_policy():
     return random_policy
+
+
+class AnswersOnly:
+    """A black box: it answers ``act`` and refuses every other access (weights, gradients)."""
+
+    def __init__(self, policy):
+        object.__setattr__(self, "_policy", policy)
+
+    def act(self, obs):
+        return self._policy.act(obs)
+
+    def __getattr__(self, name):
+        raise AssertionError(f"a black-box attack reached for the victim's {name!r}")

@@ -4,23 +4,10 @@ import torch
 
 from aril_ros.adversary import AdversaryConfig, load_adversary, save_adversary, train_adversary
 from aril_ros.attacks import LearnedAttack, make_attack
-from aril_ros.registry import adversary_path
+from tests.conftest import AnswersOnly
 from aril_ros.envs import layout_of
 from aril_ros.policy import PolicyFileError, save_policy
 from aril_ros.rollout import RolloutEngine
-
-
-class AnswersOnly:
-    """A black box: it answers ``act`` and refuses every other access (weights, gradients)."""
-
-    def __init__(self, policy):
-        object.__setattr__(self, "_policy", policy)
-
-    def act(self, obs):
-        return self._policy.act(obs)
-
-    def __getattr__(self, name):
-        raise AssertionError(f"a black-box attack reached for the victim's {name!r}")
 
 
 def answering(victim_file, expert_file):
@@ -158,11 +145,13 @@ def test_query_time_search_applies_the_most_damaging_candidate(swimmer_files, tm
     assert loss(delta).mean() > loss(drawn.perturb(obs, rngs())).mean()
 
 
-def test_the_bundled_gaussian_adversaries_still_load_and_need_no_queries():
-    net = load_adversary(adversary_path("HalfCheetah-v5", "sensory"))
-    if net.meta["policy"] != "gaussian":
-        pytest.skip("the bundled adversary is no longer a Gaussian one")
-    attack = make_attack("aril_a", layout_of("HalfCheetah-v5"), 0.0, mode="sensory")  # no victim, no expert
-    obs = np.random.default_rng(0).normal(size=(3, 17))
+def test_a_gaussian_state_only_adversary_asks_no_queries(swimmer_files, tmp_path):
+    """The adversaries made before the categorical policy: a Gaussian on the state alone, no victim needed."""
+    victim, expert = swimmer_files
+    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert),
+                                           policy="gaussian", inputs="state", steps=0, out=str(tmp_path / "adv.pt")),
+                           log=lambda *a, **k: None)
+    attack = make_attack("aril_a", layout_of("Swimmer-v5"), 0.0, adversary=str(path))  # no victim, no expert
+    obs = np.random.default_rng(0).normal(size=(3, 8))
     delta = attack.perturb(obs, [np.random.default_rng(i) for i in range(3)])
-    assert attack.queries == 0 and np.all(np.abs(delta) <= attack.eps)
+    assert attack.queries == 0 and np.all(np.abs(delta) <= 0.2) and len(np.unique(delta[:, :3])) == 9

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from aril_ros.attacks import FGSM, make_attack
+from tests.conftest import AnswersOnly
 from aril_ros.envs import MujocoSim, layout_of
 
 
@@ -61,19 +62,6 @@ def test_fgsm_is_white_box_and_its_gradient_batch_invariant(victim_expert):
     whole = victim.loss_gradient(obs, label)
     np.testing.assert_array_equal(whole[5], victim.loss_gradient(obs[5:6], label[5:6])[0])
     np.testing.assert_array_equal(whole[:7], victim.loss_gradient(obs[:7], label[:7]))
-
-
-class AnswersOnly:
-    """A black box: it answers ``act`` and refuses every other access (weights, gradients)."""
-
-    def __init__(self, policy):
-        object.__setattr__(self, "_policy", policy)
-
-    def act(self, obs):
-        return self._policy.act(obs)
-
-    def __getattr__(self, name):
-        raise AssertionError(f"a black-box attack reached for the victim's {name!r}")
 
 
 def test_spsa_is_black_box_bounded_and_near_fgsm(victim_expert):

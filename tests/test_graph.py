@@ -26,6 +26,16 @@ ROOT = Path(__file__).resolve().parent.parent
 COMPARED = ("true_obs", "obs", "delta", "action", "expert_action", "reward")
 
 
+def assert_same_steps(run, traj) -> None:
+    """Every logged step of every episode equals the engine's, to the bit."""
+    for e in range(len(traj.length)):
+        rows = run.episodes == e
+        assert rows.sum() == traj.length[e]
+        for name in COMPARED:
+            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
+                                          err_msg=f"{name}, episode {e}")
+
+
 def policy_files(tmp_path, env_id):
     return (save_policy(random_policy(env_id, seed=1), tmp_path / "policy.pt"),
             save_policy(random_policy(env_id, seed=2), tmp_path / "expert.pt"))
@@ -96,12 +106,7 @@ def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp
                            n_envs=2, horizon=80)
     traj = engine.rollout(2, seed=4)
     run = read_run(log)
-    for e in range(2):
-        rows = run.episodes == e
-        assert rows.sum() == traj.length[e]
-        for name in COMPARED:
-            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
-                                          err_msg=f"{name}, episode {e}")
+    assert_same_steps(run, traj)
     assert summary["steps"] == traj.length.sum() == len(run.tags)
     assert summary["mean_return"] == pytest.approx(traj.returns.mean(), abs=1e-3)
     assert summary["mean_expert_loss"] == pytest.approx(traj.mean_expert_loss, abs=1e-6)
@@ -278,12 +283,8 @@ def test_a_dagger_round_runs_through_the_graph_in_process(tmp_path):
     traj = RolloutEngine(env_id, victim, labeller, make_attack("random", layout_of(env_id), 0.05), "physical",
                          n_envs=2).rollout(2, seed=7)
     assert run.metadata["seed"] == 7 and run.metadata["episodes"] == 2 and run.end["episodes_completed"] == 2
-    for e in range(2):
-        rows = run.episodes == e
-        assert rows.sum() == traj.length[e] < 100
-        for name in COMPARED:
-            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
-                                          err_msg=f"{name}, episode {e}")
+    assert_same_steps(run, traj)
+    assert (traj.length < 100).all()
     broken = dataclasses.replace(spec, policy=str(tmp_path / "missing.pt"), record=tmp_path / "round-2.mcap")
     with pytest.raises(RuntimeError, match=r"round-2\.mcap.*missing\.pt: no such policy file"):
         plugins.load("aril_ros.collectors", "graph")(broken)

@@ -18,7 +18,7 @@ from aril_ros.mcap_log import RunLogWriter, read_run, recover
 from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
-from tests.test_graph import COMPARED, free_domain, policy_files, ros_env, run_graph, run_with_external, summary_of
+from tests.test_graph import assert_same_steps, free_domain, policy_files, ros_env, run_graph, run_with_external, summary_of
 
 
 def test_a_probe_tag_names_its_step_and_is_no_step_tag():
@@ -62,12 +62,7 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
                                 search=4 if attack == "aril_a" else 0)
     traj = RolloutEngine(env_id, victim, labeller, engine_attack, mode, n_envs=2, horizon=horizon).rollout(2, seed=4)
     run = read_run(log)
-    for e in range(2):
-        rows = run.episodes == e
-        assert rows.sum() == traj.length[e]
-        for name in COMPARED:
-            np.testing.assert_array_equal(getattr(run, name)[rows], getattr(traj, name)[e, : traj.length[e]],
-                                          err_msg=f"{name}, episode {e}")
+    assert_same_steps(run, traj)
     # every step asked as many probes as the engine's attack did, and the summary says so
     assert engine_attack.queries_per_step == (35 if attack == "spsa" else 6)
     assert (run.probes_per_step == engine_attack.queries_per_step).all()
