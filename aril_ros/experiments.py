@@ -316,8 +316,8 @@ def defense_markdown(payload: dict) -> str:
     shown = list(payload["overall_drop"])
     table = "Table 1" if payload["mode"] == "sensory" else "Table 2"
     lines = [f"# {table} ({payload['mode']} attacks), Robust IL rows", "",
-             "Each defense's return under the strongest of random, FGSM, FGSM^k, SPSA^k and an ARIL-A trained against that "
-             "defense (in brackets), mean ± std over deterministic episodes; the drop is from the clean DAgger "
+             "Each defense's return under the strongest of random, FGSM, FGSM^k, SPSA^k and an ARIL-A trained against "
+             "that defense (in brackets), mean ± std over deterministic episodes; the drop is from the clean DAgger "
              "learner. Each cell's seeds, clean return, every attack's figure and the command are in the JSON.", "",
              "| defense | " + " | ".join(f"{e} (eps {by_env[e]['cells'][shown[0]]['eps']:g})" for e in envs)
              + " | overall |", "|---|" + "---|" * len(envs) + "---|",

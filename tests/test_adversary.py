@@ -46,7 +46,8 @@ def test_a_short_training_run_increases_the_objective(mode, policy, inputs, swim
     victim, expert = swimmer_files
     common = dict(env="Swimmer-v5", mode=mode, eps=0.3, victim=str(victim), expert=str(expert), n_envs=8,
                   rollout=250, seed=3, policy=policy, inputs=inputs)
-    untrained = train_adversary(AdversaryConfig(**common, steps=0, out=str(tmp_path / "a0.pt")), log=lambda *a, **k: None)
+    untrained = train_adversary(AdversaryConfig(**common, steps=0, out=str(tmp_path / "a0.pt")),
+                                log=lambda *a, **k: None)
     trained = train_adversary(AdversaryConfig(**common, steps=24_000, out=str(tmp_path / "a1.pt")),
                               log=lambda *a, **k: None)
     before, after = objective(untrained, victim, expert, mode), objective(trained, victim, expert, mode)
