@@ -77,8 +77,8 @@ COMMANDS = {
     "calibrate-eps": Command(CalibrationConfig, calibrate_eps,
                              "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%)."),
     "attack-table": Command(AttackTableConfig, attack_table,
-                            "The paper's Adversary rows (clean, random, FGSM, FGSM^k, SPSA^k, ARIL-A, ARIL-A + search); "
-                            "writes results/."),
+                            "The paper's Adversary rows (clean, random, FGSM, FGSM^k, SPSA^k, ARIL-A, "
+                            "ARIL-A + search); writes results/."),
     "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
                              "strongest attack against it; writes results/."),
     "report": Command(ReportConfig, build_report,

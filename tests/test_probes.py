@@ -18,7 +18,8 @@ from aril_ros.mcap_log import RunLogWriter, read_run, recover
 from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
-from tests.test_graph import assert_same_steps, free_domain, policy_files, ros_env, run_graph, run_with_external, summary_of
+from tests.test_graph import (assert_same_steps, free_domain, policy_files, ros_env, run_graph, run_with_external,
+                              summary_of)
 
 
 def test_a_probe_tag_names_its_step_and_is_no_step_tag():

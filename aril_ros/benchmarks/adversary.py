@@ -2,10 +2,12 @@
 
     python -m aril_ros.benchmarks.adversary env:=HalfCheetah-v5 steps:=65536
 
-Both train a two-hidden-layer (64) Gaussian policy with a value head, 10 epochs per update, for the
-same number of env steps, one torch thread each. Ours also runs the victim and the expert at every
-step (the adversary's reward); SB3's PPO trains an ordinary policy on the env reward — the tool a
-user would otherwise pick. SB3 is measured with 1 env (its default) and with as many envs as ours. The
+Both train a two-hidden-layer (64) policy with a value head, 10 epochs per update, for the same
+number of env steps, one torch thread each: ours the default adversary (categorical over {-eps, 0,
++eps} per zero-order entry, given the state and the victim's and the expert's actions on it), SB3's
+PPO a Gaussian policy on the env reward — the tool a user would otherwise pick. Ours also runs the
+victim twice (on the true and the perturbed state) and the expert at every step (the adversary's
+inputs, reward and exact critic part). SB3 is measured with 1 env (its default) and with as many envs as ours. The
 last line is the figures as JSON (what ``aril report`` reads).
 """
 import json
