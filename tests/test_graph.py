@@ -2,6 +2,7 @@
 installed package (aril_ros_nodes), never from the checkout's folder."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -388,23 +389,37 @@ def test_an_external_policy_that_never_appears_is_named(tmp_path):
     assert "publisher on /action" in out.stderr
 
 
-def test_set_state_validates_its_request(tmp_path):
+@contextlib.contextmanager
+def simulator_and_prober(cwd=None):
+    """A Swimmer simulator node alone in a fresh domain (started from ``cwd``: any folder, it is installed)
+    and a node of this process in that domain with its executor; both stopped after."""
     import rclpy
-    from rcl_interfaces.srv import SetParametersAtomically
     from rclpy.executors import SingleThreadedExecutor
-
-    from aril_ros_nodes.common import param_msg
 
     domain = free_domain()
     sim = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.simulator_node", "--ros-args", "-p",
-                            "env:=Swimmer-v5"], env=ros_env(domain), cwd=tmp_path,  # any folder: it is installed
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            "env:=Swimmer-v5"], env=ros_env(domain), cwd=cwd, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     context = rclpy.Context()
     rclpy.init(args=[], context=context)
     node = rclpy.create_node("prober", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
+    try:
+        yield sim, node, executor
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        sim.send_signal(signal.SIGINT)
+        sim.wait(10)
+
+
+def test_set_state_validates_its_request(tmp_path):
+    from rcl_interfaces.srv import SetParametersAtomically
+
+    from aril_ros_nodes.common import param_msg
 
     def call(service, **params):
         client = node.create_client(SetParametersAtomically, service)
@@ -418,7 +433,7 @@ def test_set_state_validates_its_request(tmp_path):
             executor.spin_once(timeout_sec=0.05)
         return future.result().result
 
-    try:
+    with simulator_and_prober(cwd=tmp_path) as (_, node, executor):
         assert call("sim/reset", seed=0, episode=0).successful
         sim_here = MujocoSim("Swimmer-v5")
         state_size = sim_here.state_size
@@ -431,12 +446,6 @@ def test_set_state_validates_its_request(tmp_path):
         assert not stale.successful and "current step is 0/0" in stale.reason
         bad_reset = call("sim/reset", seed=1)
         assert not bad_reset.successful and "seed and episode" in bad_reset.reason
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-        sim.send_signal(signal.SIGINT)
-        sim.wait(10)
 
 
 def start_long_run(tmp_path, domain):

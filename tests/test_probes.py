@@ -2,10 +2,6 @@
 recorded as probes, and never change the trajectory. The graph runs use the helpers of test_graph."""
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -18,7 +14,7 @@ from aril_ros.mcap_log import RunLogWriter, read_run, recover
 from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
-from tests.test_graph import (assert_same_steps, free_domain, policy_files, ros_env, run_graph, run_with_external,
+from tests.test_graph import (assert_same_steps, policy_files, run_graph, run_with_external, simulator_and_prober,
                               summary_of)
 
 
@@ -89,35 +85,23 @@ def test_an_external_policy_node_is_attacked_by_queries_alone(tmp_path):
 
 def test_the_simulator_never_steps_on_a_probe():
     """A probe's answer tagged with the current step, even a malformed one, neither steps nor stops it."""
-    import rclpy
     from rcl_interfaces.srv import SetParametersAtomically
-    from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
     from aril_ros_nodes.common import STEP_QOS, joint_state, param_msg, step_header
 
-    domain = free_domain()
-    sim = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.simulator_node", "--ros-args", "-p",
-                            "env:=Swimmer-v5"], env=ros_env(domain), stdout=subprocess.DEVNULL,
-                           stderr=subprocess.DEVNULL)
-    os.environ["ROS_DOMAIN_ID"] = str(domain)
-    context = rclpy.Context()
-    rclpy.init(args=[], context=context)
-    node = rclpy.create_node("prober", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    heard: dict[str, JointState] = {}
-    node.create_subscription(JointState, P.STATE, lambda m: heard.setdefault(m.header.frame_id, m), STEP_QOS)
-    rewards = node.create_subscription(JointState, P.REWARD, lambda m: heard.setdefault("reward", m), STEP_QOS)
-    actions = node.create_publisher(JointState, P.ACTION, STEP_QOS)
-    reset = node.create_client(SetParametersAtomically, P.RESET_SERVICE)
+    with simulator_and_prober() as (sim, node, executor):
+        heard: dict[str, JointState] = {}
+        node.create_subscription(JointState, P.STATE, lambda m: heard.setdefault(m.header.frame_id, m), STEP_QOS)
+        rewards = node.create_subscription(JointState, P.REWARD, lambda m: heard.setdefault("reward", m), STEP_QOS)
+        actions = node.create_publisher(JointState, P.ACTION, STEP_QOS)
+        reset = node.create_client(SetParametersAtomically, P.RESET_SERVICE)
 
-    def spin_until(done, seconds):
-        deadline = time.monotonic() + seconds
-        while not done() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+        def spin_until(done, seconds):
+            deadline = time.monotonic() + seconds
+            while not done() and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
 
-    try:
         spin_until(lambda: reset.service_is_ready() and actions.get_subscription_count() and
                    rewards.get_publisher_count(), 30)
         request = SetParametersAtomically.Request()
@@ -139,12 +123,6 @@ def test_the_simulator_never_steps_on_a_probe():
         reference.close()
         assert heard["reward"].position[0] == reward
         np.testing.assert_array_equal(heard["0/1"].position, obs)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-        sim.send_signal(signal.SIGINT)
-        sim.wait(10)
 
 
 def cdr(header, names, **values) -> bytes:
