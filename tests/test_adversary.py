@@ -39,13 +39,11 @@ def objective(adversary_file, victim, expert, mode="sensory"):
     return engine.rollout(4, seed=123).mean_expert_loss
 
 
-@pytest.mark.parametrize("mode,policy,inputs", [("sensory", "categorical", "state+actions"),
-                                               ("physical", "categorical", "state+actions"),
-                                               ("sensory", "gaussian", "state")])
-def test_a_short_training_run_increases_the_objective(mode, policy, inputs, swimmer_files, tmp_path):
+@pytest.mark.parametrize("mode", ["sensory", "physical"])
+def test_a_short_training_run_increases_the_objective(mode, swimmer_files, tmp_path):
     victim, expert = swimmer_files
     common = dict(env="Swimmer-v5", mode=mode, eps=0.3, victim=str(victim), expert=str(expert), n_envs=8,
-                  rollout=250, seed=3, policy=policy, inputs=inputs)
+                  rollout=250, seed=3)
     untrained = train_adversary(AdversaryConfig(**common, steps=0, out=str(tmp_path / "a0.pt")),
                                 log=lambda *a, **k: None)
     trained = train_adversary(AdversaryConfig(**common, steps=24_000, out=str(tmp_path / "a1.pt")),
