@@ -274,7 +274,8 @@ class Collector:
                 sample = self.net.draw(dist, self.gen)
                 buf.logp[t] = dist.log_prob(sample).sum(-1)
                 remainder = self.net.value(x)
-                self.entropy = float(dist.entropy().mean())
+                if t == T - 1:  # for the progress line only: once a rollout, not every step
+                    self.entropy = float(dist.entropy().mean())
             delta = np.zeros_like(self.obs)
             delta[:, : self.n_position] = self.net.delta(sample).double().numpy()
             action = self.victim.act(self.sims.seen(cfg.mode, self.obs, delta, rows))
