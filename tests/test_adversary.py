@@ -76,7 +76,10 @@ def test_adversary_files_round_trip_and_refuse_mismatches(swimmer_files, tmp_pat
         make_attack("aril_a", layout_of("Hopper-v5"), 0.1)
     with pytest.raises(ValueError, match="aril_a queries the victim's actions and the expert's: it needs both"):
         make_attack("aril_a", layout_of("Swimmer-v5"), 0.2, adversary=str(path))  # this one takes their actions
-    bundled = make_attack("aril_a", layout_of("Swimmer-v5"), 0.0, mode="physical")  # by name: the bundled one
+    from aril_ros.policy import resolve_policy
+
+    bundled = make_attack("aril_a", layout_of("Swimmer-v5"), 0.0, resolve_policy("dagger", "Swimmer-v5"),
+                          resolve_policy("expert", "Swimmer-v5"), mode="physical")  # by name: the bundled one
     assert bundled.net.meta["provenance"]["victim"] == "dagger" and bundled.eps == bundled.net.eps
 
 
