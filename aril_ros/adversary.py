@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from . import plugins, seeds
-from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_size, load_adversary, save_adversary
+from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, input_size, load_adversary, save_adversary
 from .args import arg
 from .envs import layout_of
 from .policy import resolve_policy
@@ -187,8 +187,7 @@ def input_scaling(cfg: AdversaryConfig, sims: SimBatch, victim, expert, resets: 
     visited = []
     for _ in range(cfg.warmup + 1):
         action = victim.act(obs)
-        visited.append(np.concatenate([obs, action, expert.act(obs)], axis=1)
-                       if cfg.inputs == "state+actions" else obs.copy())
+        visited.append(input_rows(cfg.inputs, obs.copy(), action, expert.act(obs)))
         obs = sims.step(action, rows)[0]
     visited = np.concatenate(visited)
     return visited.mean(0), visited.std(0) + 1e-3
@@ -207,8 +206,7 @@ def initial_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.nd
     layout = layout_of(cfg.env)
     meta = {"env_id": cfg.env, "mode": cfg.mode, "eps": cfg.eps, "obs_dim": layout.obs_dim, "act_dim": layout.act_dim,
             "n_position": layout.n_position, "policy": cfg.policy, "inputs": cfg.inputs, "hidden": cfg.hidden,
-            "obs_mean": obs_mean.tolist(),
-            "obs_std": obs_std.tolist(), "provenance": {}}
+            "obs_mean": obs_mean.tolist(), "obs_std": obs_std.tolist(), "provenance": {}}
     with torch.random.fork_rng():  # seeded initial weights without touching the global generator
         torch.manual_seed(cfg.seed)
         return AdversaryNet(meta)

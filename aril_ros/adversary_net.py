@@ -46,6 +46,16 @@ def input_size(meta: dict) -> int:
     return meta["obs_dim"] + (2 * meta["act_dim"] if meta.get("inputs", "state") == "state+actions" else 0)
 
 
+def input_rows(inputs: str, obs: np.ndarray, victim_action: np.ndarray | None,
+               expert_action: np.ndarray | None) -> np.ndarray:
+    """The adversary's input rows for its ``inputs``: ``obs``, followed by both actions for ``state+actions``."""
+    if inputs == "state":
+        return obs
+    if victim_action is None or expert_action is None:
+        raise ValueError("this adversary takes the victim's and the expert's actions on the true state")
+    return np.concatenate([obs, victim_action, expert_action], axis=1)
+
+
 class AdversaryNet(nn.Module):
     """The adversary's policy head (categorical logits or a Gaussian mean with a learnable log-std)
     and its value head, both on the normalised input row (see the module docstring)."""
@@ -70,12 +80,7 @@ class AdversaryNet(nn.Module):
         self.register_buffer("obs_std", torch.tensor(meta["obs_std"], dtype=torch.float32))
 
     def inputs(self, obs: np.ndarray, victim_action: np.ndarray | None, expert_action: np.ndarray | None) -> np.ndarray:
-        """The input rows: ``obs``, followed by both actions when the adversary takes them."""
-        if not self.takes_actions:
-            return obs
-        if victim_action is None or expert_action is None:
-            raise ValueError("this adversary takes the victim's and the expert's actions on the true state")
-        return np.concatenate([obs, victim_action, expert_action], axis=1)
+        return input_rows(self.meta["inputs"], obs, victim_action, expert_action)
 
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
         return ((x.float() - self.obs_mean) / self.obs_std).clamp(-10.0, 10.0)

@@ -18,6 +18,7 @@ from .adversary_net import AdversaryNet, load_adversary
 from .envs import ObsLayout
 from .policy import in_blocks
 from .registry import ATTACKS, QUERY_ATTACKS, WHITE_BOX, adversary_path, check_name
+from .step import disagreement
 
 
 class Attack:
@@ -82,7 +83,7 @@ class FGSM(Attack):
         self.victim, self.expert, self.steps = victim, expert, int(steps)
 
     def loss(self, true_obs: np.ndarray, delta: np.ndarray, label: np.ndarray) -> np.ndarray:
-        return ((self.victim.act(true_obs + delta) - label) ** 2).sum(axis=1)
+        return disagreement(self.victim.act(true_obs + delta), label)
 
     def propose(self, true_obs, rngs):
         label = self.expert.act(true_obs)
@@ -112,13 +113,16 @@ class QueryAttack(Attack):
     for its weights, and the expert for its action on the true state (what the loss compares with).
     ``queries`` counts the observations put to the victim, ``attacked`` the observations perturbed."""
 
+    asks_victim = True
+    """Whether it queries the victim (and the expert) at all; a subclass may decide per instance."""
+
     def __init__(self, layout: ObsLayout, eps: float, victim, expert):
         super().__init__(layout, eps)
         self.victim, self.expert = victim, expert
         self.queries = self.attacked = 0
 
     def require_answers(self) -> None:
-        if self.victim is None or self.expert is None:
+        if self.asks_victim and (self.victim is None or self.expert is None):
             raise ValueError(f"attack {self.name} queries the victim's actions and the expert's: it needs both")
 
     def ask(self, obs: np.ndarray) -> np.ndarray:
@@ -129,7 +133,7 @@ class QueryAttack(Attack):
         """``||pi(s + delta) - pi_e(s)||^2`` of ``candidates[i, j]`` (deltas of observation i), in one query batch."""
         n, m = candidates.shape[:2]
         seen = (true_obs[:, None, :] + candidates).reshape(n * m, -1)
-        return ((self.ask(seen).reshape(n, m, -1) - label[:, None, :]) ** 2).sum(-1)
+        return disagreement(self.ask(seen).reshape(n, m, -1), label[:, None, :])
 
     def perturb(self, true_obs, rngs):
         self.attacked += len(true_obs)
@@ -197,14 +201,17 @@ class LearnedAttack(QueryAttack):
         if search < 0:
             raise ValueError(f"search must be >= 0 candidates, got {search}")
         self.net, self.stochastic, self.search = net, stochastic, int(search)
-        if net.takes_actions or self.search:
-            self.require_answers()
+        self.require_answers()
         self.scale = self.eps / net.eps
+
+    @property
+    def asks_victim(self) -> bool:
+        return self.net.takes_actions or self.search > 0
 
     @torch.inference_mode()
     def propose(self, true_obs, rngs):
         n_pos = self.layout.n_position
-        label = self.expert.act(true_obs) if self.expert is not None else None
+        label = self.expert.act(true_obs) if self.asks_victim else None
         clean = self.ask(true_obs) if self.net.takes_actions else None
         x = self.net.inputs(true_obs, clean, label)
         blocks, n = in_blocks(x)  # batch-invariant, like the policies

@@ -52,7 +52,8 @@ class AttackerNode(Node):
         if white_box and not victim_name:
             raise ValueError(f"attack {attack} is white-box: set the victim parameter to the attacked policy")
         env_id = self.layout.env_id
-        # spsa always asks the policy node; aril_a does when its adversary takes actions or it searches
+        # spsa always asks the policy node; aril_a does when its adversary takes actions or it searches,
+        # which its file tells once the attack is made
         self.probes = (RemotePolicy(env_id, connect_timeout=None, name="attacker_probes")
                        if attack in (*QUERY_ATTACKS, "aril_a") else None)
         self.attack = make_attack(
@@ -61,6 +62,9 @@ class AttackerNode(Node):
             expert=resolve_policy(expert_name, env_id) if white_box or self.probes is not None else None,
             steps=declared(self, "k", 0) or None, adversary=declared(self, "attack_file", ""), mode=self.mode,
             search=declared(self, "search", 0))
+        if self.probes is not None and not self.attack.asks_victim:  # an adversary of the state alone, no search
+            self.probes.close()
+            self.probes = None
         self.seed = declared(self, "seed", 0)
         self.rng = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)

@@ -410,8 +410,9 @@ class StepRecorder:
         if not self.order:
             return f"no {P.STATE} from the simulator"
         missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(self.order[0]))]
-        if self.half_heard(self.order[0]):
-            missing.append(f"{self.half_heard(self.order[0])} probes' observation or answer (attacker, policy)")
+        half_heard = self.half_heard(self.order[0])
+        if half_heard:
+            missing.append(f"{half_heard} probes' observation or answer (attacker, policy)")
         return "waiting for " + ", ".join(missing)
 
 
