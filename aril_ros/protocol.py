@@ -83,10 +83,10 @@ class ProbeTag:
     @classmethod
     def parse(cls, text: str) -> "ProbeTag":
         try:
-            episode, step, mark, index = text.split("/")
+            step, mark, index = text.rsplit("/", 2)
             if mark != "probe":
                 raise ValueError
-            return cls(StepTag(int(episode), int(step)), int(index))
+            return cls(StepTag.parse(step), int(index))
         except ValueError:
             raise ValueError(f"not a probe tag (want '<episode>/<step>/probe/<k>'): {text!r}") from None
 
