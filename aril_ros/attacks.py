@@ -206,7 +206,7 @@ class LearnedAttack(QueryAttack):
 
     @property
     def asks_victim(self) -> bool:
-        return self.net.takes_actions or self.search > 0
+        return queries_victim(self.name, self.net, self.search)
 
     @torch.inference_mode()
     def propose(self, true_obs, rngs):
@@ -243,6 +243,15 @@ class LearnedAttack(QueryAttack):
 
 
 CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk, SPSA)}
+
+
+def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: int = 0) -> bool:
+    """Whether ``attack`` puts questions to the victim: the zeroth-order ones always, aril_a when its
+    ``adversary`` takes the victim's actions or it searches (``search`` > 0) -- in a graph, whether the
+    attacker's probe client listens on ``action`` too."""
+    if attack == "aril_a":
+        return adversary.takes_actions or search > 0
+    return attack in QUERY_ATTACKS
 
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,

@@ -30,6 +30,7 @@ from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.adversary_net import load_adversary
 from aril_ros.args import arg
+from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.policy import resolve_policy
@@ -142,8 +143,13 @@ class Orchestrator:
                              + ", ".join(a for a in ATTACKS if a not in (*WHITE_BOX, "none")))
         self.layout = layout_of(cfg.env)
         self.eps = attack_budget(cfg.env, cfg.mode, self.attack, cfg.eps)
+        adversary = None
         if self.attack == "aril_a":  # its file's eps; a missing or mismatched file is reported before anything starts
-            self.eps = load_adversary(cfg.attack_file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode).eps
+            adversary = load_adversary(cfg.attack_file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode)
+            self.eps = adversary.eps
+        # who listens on action: the simulator, the recorder and, when the attack queries, the attacker's
+        # probe client; the policy node waits for all of them, or step 0's action may reach only some
+        self.action_listeners = 2 + queries_victim(self.attack, adversary, cfg.search)
         # load both now: a bad file is reported before any process starts
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
@@ -171,7 +177,7 @@ class Orchestrator:
             "expert": {"env": cfg.env, "expert": expert},
         }
         if cfg.policy != "external":
-            specs["policy"] = {**common, "policy": policy}
+            specs["policy"] = {**common, "policy": policy, "listeners": self.action_listeners}
         node_env = {name: env for name in specs}
         if cfg.render:  # mujoco picks its GL backend on import: the simulator's process needs it set
             node_env["simulator"] = {**env, "MUJOCO_GL": env.get("MUJOCO_GL", "egl")}
@@ -227,7 +233,9 @@ class Orchestrator:
         caller_env = {k: os.environ.get(k) for k in ros_vars}  # restored after the run (an in-process caller's)
         os.environ.update({k: env[k] for k in ros_vars})
         self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
-                 f"domain={domain} logs={self.log_dir}", file=sys.stderr)
+                 f"domain={domain} logs={self.log_dir}"
+                 + (f" (the external policy node: answer once action has {self.action_listeners} subscribers)"
+                    if self.cfg.policy == "external" else ""), file=sys.stderr)
         writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
         recorder = StepRecorder(writer)
         ros = None

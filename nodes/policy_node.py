@@ -22,7 +22,10 @@ from aril_ros_nodes.common import STEP_QOS, ReadyAnnouncer, declared, joint_stat
 class PolicyNode(Node):
     """Maps ``in_topic`` observations to ``out_topic`` actions with a policy file.
 
-    ``out_subscribers``: who must listen before the node is ready (the simulator and the recorder).
+    ``listeners`` (parameter; default ``out_subscribers``): how many subscribers on ``out_topic`` to wait
+    for before announcing ready -- the simulator and the recorder, and the attacker's probe client when
+    the attack queries the policy. A count that others can fill would let the node answer step 0 before
+    the simulator has matched its publisher, and that action would be lost.
     """
 
     def __init__(self, name="policy", in_topic=P.OBSERVATION, out_topic=P.ACTION, default_policy="expert",
@@ -34,8 +37,9 @@ class PolicyNode(Node):
         self.names = layout_of(env_id).action_names
         self.pub = self.create_publisher(JointState, out_topic, STEP_QOS)
         sub = self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)
+        listeners = declared(self, "listeners", out_subscribers)
         self.ready = ReadyAnnouncer(self, {f"a publisher on {in_topic}": publishers(sub),
-                              f"{out_subscribers} subscribers on {out_topic}": subscribers(self.pub, out_subscribers)})
+                                           f"{listeners} subscribers on {out_topic}": subscribers(self.pub, listeners)})
 
     def on_observation(self, msg: JointState) -> None:
         action = self.policy.act(np.asarray(msg.position, dtype=np.float64))

@@ -186,3 +186,84 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
         np.testing.assert_array_equal(run.probe_obs, [[9.0, 0.0], [9.0, 1.0]])
         np.testing.assert_array_equal(run.probe_action, [[0.0], [-1.0]])
         assert message_counts(log)["/probe/action"] == 2
+
+
+def test_queries_victim_says_which_attacks_ask_the_policy(tmp_path):
+    from aril_ros.adversary_net import load_adversary
+    from aril_ros.attacks import queries_victim
+    from aril_ros.registry import adversary_path
+
+    takes_actions = load_adversary(adversary_path("Swimmer-v5", "sensory"))
+    assert takes_actions.takes_actions
+    state_only = state_only_adversary(tmp_path)
+    assert [queries_victim(a) for a in ("none", "random", "fgsm", "fgsm_k", "spsa")] == [False] * 4 + [True]
+    assert queries_victim("aril_a", takes_actions) and queries_victim("aril_a", state_only, search=2)
+    assert not queries_victim("aril_a", state_only)
+    # so the orchestrator has the policy node wait for the attacker's probe client on action too
+    from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
+
+    policy, expert = policy_files(tmp_path, "Swimmer-v5")
+    for attack, listeners in (("random", 2), ("spsa", 3)):
+        run = Orchestrator(GraphConfig(env="Swimmer-v5", mode="sensory", attack=attack, policy=str(policy),
+                                       expert=str(expert), record="off"))
+        assert run.action_listeners == listeners
+        run.log_dir.rmdir()
+
+
+def state_only_adversary(tmp_path):
+    from aril_ros.adversary import AdversaryConfig, train_adversary
+    from aril_ros.adversary_net import load_adversary
+
+    policy, expert = policy_files(tmp_path, "Swimmer-v5")
+    return load_adversary(train_adversary(AdversaryConfig(env="Swimmer-v5", mode="sensory", eps=0.1, victim=str(policy),
+                                                          expert=str(expert), inputs="state", steps=0,
+                                                          out=str(tmp_path / "state-only.pt")),
+                                          log=lambda *a, **k: None))
+
+
+def test_the_policy_node_is_ready_only_once_every_listener_on_action_has_matched(tmp_path, monkeypatch):
+    """Under a query attack the attacker's probe client listens on action too. A policy node ready at two
+    subscribers could then answer step 0 before the simulator has matched its publisher, and that action
+    would be lost (a run stalled at step 0/0): it waits for the ``listeners`` the orchestrator names."""
+    import subprocess
+    import sys
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from aril_ros_nodes.common import READY_QOS, STEP_QOS
+    from tests.test_graph import free_domain, ros_env
+
+    domain = free_domain()
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    policy, _ = policy_files(tmp_path, "Swimmer-v5")
+    node = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.policy_node", "--ros-args", "-p", "env:=Swimmer-v5",
+                             "-p", f"policy:={policy}", "-p", "listeners:=3"], env=ros_env(domain),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    context = rclpy.Context()
+    rclpy.init(args=[], context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        peer = rclpy.create_node("peers", context=context)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(peer)
+        announced = []
+        peer.create_subscription(String, P.READY, lambda msg: announced.append(msg.data), READY_QOS)
+        peer.create_publisher(JointState, P.OBSERVATION, STEP_QOS)  # it waits for observations' publisher too
+        listeners = [peer.create_subscription(JointState, P.ACTION, lambda msg: None, STEP_QOS) for _ in range(2)]
+
+        def spin_until(done, seconds):
+            deadline = time.monotonic() + seconds
+            while not done() and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
+            return done()
+
+        assert spin_until(lambda: all(s.get_publisher_count() for s in listeners), 30), "the policy node never came up"
+        assert not spin_until(lambda: announced, 3), "ready with two of its three listeners"
+        listeners.append(peer.create_subscription(JointState, P.ACTION, lambda msg: None, STEP_QOS))
+        assert spin_until(lambda: announced, 15) and announced == ["policy"]
+    finally:
+        rclpy.try_shutdown(context=context)
+        node.kill()
+        node.wait()
