@@ -17,6 +17,7 @@ import datetime
 import fcntl
 import os
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
@@ -80,11 +81,13 @@ class GraphError(RuntimeError):
 
 def allocate_domain(requested: str):
     """A ROS domain id no other aril_ros run on this machine holds, and the open lock file holding it."""
-    lock_dir = Path(tempfile.gettempdir()) / "aril_ros-domains"
-    lock_dir.mkdir(exist_ok=True)
+    lock_dir = _domain_lock_dir()
     candidates = [int(requested)] if requested != "auto" else [1 + (os.getpid() + i) % 200 for i in range(200)]
     for domain in candidates:
-        handle = open(lock_dir / f"{domain}.lock", "w")
+        try:
+            handle = _open_lock(lock_dir / f"{domain}.lock")
+        except PermissionError:  # a lock file another user made unreadable: take that domain as theirs
+            continue
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
             return domain, handle
@@ -92,6 +95,37 @@ def allocate_domain(requested: str):
             handle.close()
     raise GraphError(f"ROS domain {requested} is held by another aril_ros run" if requested != "auto"
                      else "no free ROS domain id (1..200)")
+
+
+def _domain_lock_dir() -> Path:
+    """The directory of the domain lock files, shared by every user of the machine (mode 1777, like /tmp): the
+    runs of two users must not take the same domain either."""
+    lock_dir = Path(tempfile.gettempdir()) / "aril_ros-domains"
+    try:
+        lock_dir.mkdir(exist_ok=True)
+        info = lock_dir.stat()
+        if info.st_uid == os.getuid() and stat.S_IMODE(info.st_mode) != 0o1777:
+            lock_dir.chmod(0o1777)  # mkdir's mode is cut by the umask, and an older aril_ros made it 755
+    except OSError as err:
+        raise GraphError(f"the ROS domain lock directory {lock_dir} cannot be made: {err.strerror or err}") from None
+    if not os.access(lock_dir, os.W_OK | os.X_OK):
+        raise GraphError(f"the ROS domain lock directory {lock_dir} (mode {stat.S_IMODE(info.st_mode):o}) is not "
+                         f"writable by this user; its owner (uid {info.st_uid}) can share it: chmod 1777 {lock_dir}")
+    return lock_dir
+
+
+def _open_lock(path: Path):
+    """The lock file ``path`` opened for flock, made readable by every user if new. Read-only, as flock needs no
+    more, and another user's lock file is read-only to us (and O_CREAT on it may be refused: fs.protected_regular)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.fchmod(fd, 0o644)  # whatever the umask
+        except FileExistsError:  # another run made it just now
+            fd = os.open(path, os.O_RDONLY)
+    return open(fd, "rb")
 
 
 def _detach_but_die_with_parent() -> None:

@@ -5,9 +5,28 @@ without advice to run it. The corrupted logs are written by the real writer from
 from __future__ import annotations
 
 import dataclasses
+import stat
 
 import pytest
 import torch
+
+
+def test_the_domain_lock_directory_is_shared_by_every_user(monkeypatch, tmp_path):
+    import tempfile
+
+    from aril_ros_nodes.orchestrator import allocate_domain
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    (tmp_path / "aril_ros-domains").mkdir(mode=0o755)  # as an older aril_ros made it
+    domain, lock = allocate_domain("auto")
+    try:
+        assert stat.S_IMODE((tmp_path / "aril_ros-domains").stat().st_mode) == 0o1777
+        assert stat.S_IMODE((tmp_path / "aril_ros-domains" / f"{domain}.lock").stat().st_mode) == 0o644
+        again, other = allocate_domain("auto")  # the lock is held: another domain
+        assert again != domain
+        other.close()
+    finally:
+        lock.close()
 
 
 def test_a_pickled_policy_is_refused_without_advice_to_run_it(tmp_path):
