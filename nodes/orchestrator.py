@@ -16,6 +16,7 @@ import ctypes
 import datetime
 import fcntl
 import os
+import secrets
 import signal
 import stat
 import subprocess
@@ -65,7 +66,8 @@ class GraphConfig:
                                  "against mode:=), a policy file, or external (start none, wait for one)")
     expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")
     horizon: int = arg(HORIZON, "steps per episode")
-    record: str = arg("", "MCAP file to record to (default: runs/<time>-<env>-<mode>.mcap; off: no file)")
+    record: str = arg("", "MCAP file to record to, created anew (default: runs/<time>-<env>-<mode>-<random>.mcap; "
+                          "off: no file)")
     domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
     connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
     step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck")
@@ -188,7 +190,9 @@ class Orchestrator:
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        self.record = None if cfg.record == "off" else Path(cfg.record or f"runs/{stamp}-{cfg.env}-{cfg.mode}.mcap")
+        # runs started in the same second get names of their own (the writer refuses a file that exists)
+        default_record = f"runs/{stamp}-{cfg.env}-{cfg.mode}-{secrets.token_hex(3)}.mcap"
+        self.record = None if cfg.record == "off" else Path(cfg.record or default_record)
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
         self.nodes: list[NodeProcess] = []
         self.interrupted = False
@@ -253,6 +257,7 @@ class Orchestrator:
             "episodes": cfg.episodes, "horizon": cfg.horizon, "policy": cfg.policy, "expert": cfg.expert,
             "policy_provenance": self.policy_meta.provenance if self.policy_meta else "external",
             "expert_provenance": self.expert_meta.provenance, "obs_names": list(self.layout.names),
+            "zero_order": self.layout.zero_order_mask.tolist(),
             "action_names": list(self.layout.action_names), "aril_ros": __version__,
             "git_revision": git_revision(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
         }
@@ -270,14 +275,16 @@ class Orchestrator:
                  f"domain={domain} logs={self.log_dir}"
                  + (f" (the external policy node: answer once action has {self.action_listeners} subscribers)"
                     if self.cfg.policy == "external" else ""), file=sys.stderr)
-        writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
-        recorder = StepRecorder(writer)
+        writer = None
         ros = None
         interrupted, reason = False, ""
         # Ctrl-C / SIGTERM only set a flag, checked between spins: a KeyboardInterrupt raised inside an
         # rclpy callback can be swallowed by the executor, and the run would go on.
         previous = {sig: signal.signal(sig, self._request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
+            # first: a record path that exists or cannot be written stops the run before any node starts
+            writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
+            recorder = StepRecorder(writer)
             self.start_nodes(env)
             ros = GraphClient(recorder, camera=self.cfg.render)
             self.wait_connected(ros)
