@@ -377,10 +377,12 @@ def _step_fault(rules: _RunRules, tag: StepTag, step: dict[str, list[_Message]],
         i = int(np.argmin(allowed))
         bound = f"beyond eps {rules.eps}" if rules.zero_order[i] else "on an entry that is not zero-order (must be 0)"
         return f"step {tag} {P.PERTURBATION}: delta[{i}] ({rules.obs_names[i]}) = {float(delta[i])!r}, {bound}"
-    if rules.mode != "physical" and not np.array_equal(values[P.OBSERVATION],
-                                                       sensory_observation(values[P.STATE], delta)):
-        return (f"step {tag} {P.OBSERVATION}: not {P.STATE} + {P.PERTURBATION}, what a {rules.mode} step shows "
-                "the policy")
+    # a physical step moves the state by delta: its zero-order entries show that move, the rest its physics
+    shown = rules.zero_order if rules.mode == "physical" else np.ones_like(rules.zero_order)
+    if not np.array_equal(values[P.OBSERVATION][shown], sensory_observation(values[P.STATE], delta)[shown]):
+        return (f"step {tag} {P.OBSERVATION}: not {P.STATE} + {P.PERTURBATION}"
+                + (" on its zero-order entries" if rules.mode == "physical" else "")
+                + f", what a {rules.mode} step shows the policy")
     sizes = {P.OBSERVATION: len(rules.obs_names), P.ACTION: len(rules.action_names)}
     for probe, halves in probes.items():
         for topic, size in sizes.items():

@@ -113,6 +113,19 @@ def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
             read_run(broken)
         with pytest.raises(RunLogError, match=message):
             load_dagger_dataset(broken)
+    # a physical step's observation is the moved state's: state + delta on the zero-order entries, physics elsewhere
+    physical = {**meta, "mode": "physical"}
+    seen = values(messages[P.OBSERVATION])
+    for entry, accepted in ((4, True), (1, False)):
+        moved = {**messages,
+                 P.OBSERVATION: edited(messages[P.OBSERVATION], position=list(seen + (np.arange(8) == entry)))}
+        log_of = write_log(tmp_path / f"physical-{entry}.mcap", physical, [*steps[:5], (stamp, moved), *steps[6:]])
+        if accepted:
+            assert read_run(log_of).obs[5, entry] == seen[entry] + 1
+        else:
+            with pytest.raises(RunLogError, match=r"step 0/5 observation: not sim/state \+ attack/perturbation on its "
+                                                  r"zero-order entries, what a physical step shows the policy"):
+                read_run(log_of)
 
 
 def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path):
