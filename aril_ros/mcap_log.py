@@ -263,10 +263,13 @@ class _RunRules:
         missing = [key for key in ("mode", "eps", "obs_names", "action_names", "zero_order") if key not in meta]
         if missing:
             raise RunLogError(f"its aril_run metadata lacks {', '.join(missing)} (recorded by an older aril_ros?)")
-        rules = cls(mode=_maybe_json(meta["mode"]), eps=float(json.loads(meta["eps"])),
-                    obs_names=tuple(json.loads(meta["obs_names"])),
-                    action_names=tuple(json.loads(meta["action_names"])),
-                    zero_order=np.array(json.loads(meta["zero_order"]), dtype=bool))
+        try:
+            rules = cls(mode=_maybe_json(meta["mode"]), eps=float(json.loads(meta["eps"])),
+                        obs_names=tuple(json.loads(meta["obs_names"])),
+                        action_names=tuple(json.loads(meta["action_names"])),
+                        zero_order=np.array(json.loads(meta["zero_order"]), dtype=bool))
+        except (TypeError, ValueError) as err:
+            raise RunLogError(f"its aril_run metadata is malformed ({type(err).__name__}: {err})") from None
         if rules.mode not in MODES:
             raise RunLogError(f"its aril_run metadata has mode {rules.mode!r}, none of {', '.join(MODES)}")
         if not rules.eps >= 0:

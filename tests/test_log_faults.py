@@ -126,6 +126,11 @@ def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
             with pytest.raises(RunLogError, match=r"step 0/5 observation: not sim/state \+ attack/perturbation on its "
                                                   r"zero-order entries, what a physical step shows the policy"):
                 read_run(log_of)
+    without = {key: value for key, value in meta.items() if key != "zero_order"}
+    for name, broken_meta, message in (("no zero_order", without, "metadata lacks zero_order"),
+                                       ("eps not a number", {**meta, "eps": "a lot"}, "metadata is malformed")):
+        with pytest.raises(RunLogError, match=message):
+            read_run(write_log(tmp_path / f"{name}.mcap", broken_meta, steps))
 
 
 def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path):
