@@ -43,15 +43,15 @@ def run_eval(cfg: EvalConfig) -> dict:
 class RecoverConfig:
     """Arguments of ``aril log-recover``."""
 
-    input: str = arg("", "a run log that was cut short (the run was killed)")
-    out: str = arg("", "where to write the recovered log (default: <input>.recovered.mcap)")
+    input: str = arg("", "a run log that was cut short (the run was killed) or damaged; a closed, readable one is "
+                         "refused")
+    out: str = arg("", "where to write the recovered log, a new file (default: <input>.recovered.mcap)")
 
 
 def run_recover(cfg: RecoverConfig) -> int:
-    out = cfg.out or str(Path(cfg.input).with_suffix("")) + ".recovered.mcap"
-    steps = recover(cfg.input, out)
-    print(f"recovered {steps} complete steps into {out}")
-    return steps
+    recovery = recover(cfg.input, cfg.out or str(Path(cfg.input).with_suffix("")) + ".recovered.mcap")
+    print(recovery.text())
+    return recovery.steps
 
 
 @dataclass
@@ -84,7 +84,7 @@ COMMANDS = {
     "report": Command(ReportConfig, build_report,
                       "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
     "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
-    "log-recover": Command(RecoverConfig, run_recover, "Rewrite the complete steps of a cut-short run log."),
+    "log-recover": Command(RecoverConfig, run_recover, "Rewrite the intact steps of a cut-short or damaged run log."),
 }
 
 

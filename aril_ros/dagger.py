@@ -265,6 +265,7 @@ def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) ->
         spec = RoundSpec(env=cfg.env, mode=mode, attack=attack_name, eps=eps, policy=policy, expert=cfg.expert,
                          attack_file=adversary_file, episodes=cfg.episodes, seed=seed,
                          record=run.dir / f"round-{r}.mcap")
+        spec.record.unlink(missing_ok=True)  # an earlier, killed attempt at this round: the run log is made anew
         log_path = plugins.load("aril_ros.collectors", "graph")(spec)
         logged = read_run(log_path)
         episodes = episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)

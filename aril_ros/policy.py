@@ -20,6 +20,8 @@ deterministic mean action is what every rollout, node and attack uses.
 from __future__ import annotations
 
 import json
+import pickle
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -177,7 +179,15 @@ def load_weights(path: str | Path, kind: str = "policy") -> tuple[dict, dict]:
         raise PolicyFileError(f"{path}: no such {kind} file")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a damaged zip or pickle
+    except pickle.UnpicklingError as err:
+        # torch's own text advises retrying with weights_only=False, which would run the file's code: never shown
+        refused = re.search(r"GLOBAL ([\w.]+)", str(err))
+        raise PolicyFileError(
+            f"{path}: refused for safety: the file holds pickled code or objects beyond plain weights"
+            + (f" (it asks for {refused[1]})" if refused else "")
+            + f"; an aril_ros {kind} file holds tensors and plain values only, and is never loaded otherwise"
+        ) from None
+    except Exception as err:  # torch raises many types for a damaged zip
         raise PolicyFileError(f"{path}: not a readable {kind} file ({type(err).__name__}: {err})") from None
     if not isinstance(blob, dict) or blob.get("format") != f"aril_ros.{kind}":
         found = blob.get("format") if isinstance(blob, dict) else None

@@ -16,7 +16,9 @@ import ctypes
 import datetime
 import fcntl
 import os
+import secrets
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
@@ -64,7 +66,8 @@ class GraphConfig:
                                  "against mode:=), a policy file, or external (start none, wait for one)")
     expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")
     horizon: int = arg(HORIZON, "steps per episode")
-    record: str = arg("", "MCAP file to record to (default: runs/<time>-<env>-<mode>.mcap; off: no file)")
+    record: str = arg("", "MCAP file to record to, created anew (default: runs/<time>-<env>-<mode>-<random>.mcap; "
+                          "off: no file)")
     domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
     connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
     step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck")
@@ -80,11 +83,13 @@ class GraphError(RuntimeError):
 
 def allocate_domain(requested: str):
     """A ROS domain id no other aril_ros run on this machine holds, and the open lock file holding it."""
-    lock_dir = Path(tempfile.gettempdir()) / "aril_ros-domains"
-    lock_dir.mkdir(exist_ok=True)
+    lock_dir = _domain_lock_dir()
     candidates = [int(requested)] if requested != "auto" else [1 + (os.getpid() + i) % 200 for i in range(200)]
     for domain in candidates:
-        handle = open(lock_dir / f"{domain}.lock", "w")
+        try:
+            handle = _open_lock(lock_dir / f"{domain}.lock")
+        except PermissionError:  # a lock file another user made unreadable: take that domain as theirs
+            continue
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
             return domain, handle
@@ -92,6 +97,37 @@ def allocate_domain(requested: str):
             handle.close()
     raise GraphError(f"ROS domain {requested} is held by another aril_ros run" if requested != "auto"
                      else "no free ROS domain id (1..200)")
+
+
+def _domain_lock_dir() -> Path:
+    """The directory of the domain lock files, shared by every user of the machine (mode 1777, like /tmp): the
+    runs of two users must not take the same domain either."""
+    lock_dir = Path(tempfile.gettempdir()) / "aril_ros-domains"
+    try:
+        lock_dir.mkdir(exist_ok=True)
+        info = lock_dir.stat()
+        if info.st_uid == os.getuid() and stat.S_IMODE(info.st_mode) != 0o1777:
+            lock_dir.chmod(0o1777)  # mkdir's mode is cut by the umask, and an older aril_ros made it 755
+    except OSError as err:
+        raise GraphError(f"the ROS domain lock directory {lock_dir} cannot be made: {err.strerror or err}") from None
+    if not os.access(lock_dir, os.W_OK | os.X_OK):
+        raise GraphError(f"the ROS domain lock directory {lock_dir} (mode {stat.S_IMODE(info.st_mode):o}) is not "
+                         f"writable by this user; its owner (uid {info.st_uid}) can share it: chmod 1777 {lock_dir}")
+    return lock_dir
+
+
+def _open_lock(path: Path):
+    """The lock file ``path`` opened for flock, made readable by every user if new. Read-only, as flock needs no
+    more, and another user's lock file is read-only to us (and O_CREAT on it may be refused: fs.protected_regular)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.fchmod(fd, 0o644)  # whatever the umask
+        except FileExistsError:  # another run made it just now
+            fd = os.open(path, os.O_RDONLY)
+    return open(fd, "rb")
 
 
 def _detach_but_die_with_parent() -> None:
@@ -154,7 +190,9 @@ class Orchestrator:
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-        self.record = None if cfg.record == "off" else Path(cfg.record or f"runs/{stamp}-{cfg.env}-{cfg.mode}.mcap")
+        # runs started in the same second get names of their own (the writer refuses a file that exists)
+        default_record = f"runs/{stamp}-{cfg.env}-{cfg.mode}-{secrets.token_hex(3)}.mcap"
+        self.record = None if cfg.record == "off" else Path(cfg.record or default_record)
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
         self.nodes: list[NodeProcess] = []
         self.interrupted = False
@@ -219,6 +257,7 @@ class Orchestrator:
             "episodes": cfg.episodes, "horizon": cfg.horizon, "policy": cfg.policy, "expert": cfg.expert,
             "policy_provenance": self.policy_meta.provenance if self.policy_meta else "external",
             "expert_provenance": self.expert_meta.provenance, "obs_names": list(self.layout.names),
+            "zero_order": self.layout.zero_order_mask.tolist(),
             "action_names": list(self.layout.action_names), "aril_ros": __version__,
             "git_revision": git_revision(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
         }
@@ -236,14 +275,16 @@ class Orchestrator:
                  f"domain={domain} logs={self.log_dir}"
                  + (f" (the external policy node: answer once action has {self.action_listeners} subscribers)"
                     if self.cfg.policy == "external" else ""), file=sys.stderr)
-        writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
-        recorder = StepRecorder(writer)
+        writer = None
         ros = None
         interrupted, reason = False, ""
         # Ctrl-C / SIGTERM only set a flag, checked between spins: a KeyboardInterrupt raised inside an
         # rclpy callback can be swallowed by the executor, and the run would go on.
         previous = {sig: signal.signal(sig, self._request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
+            # first: a record path that exists or cannot be written stops the run before any node starts
+            writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
+            recorder = StepRecorder(writer)
             self.start_nodes(env)
             ros = GraphClient(recorder, camera=self.cfg.render)
             self.wait_connected(ros)

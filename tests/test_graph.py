@@ -484,7 +484,7 @@ def test_a_killed_run_leaves_its_complete_steps_recoverable(tmp_path):
     assert processes_in_domain(domain) == []
     with pytest.raises(RunLogError, match="cut short|truncated"):
         read_run(log)
-    steps = recover(log, tmp_path / "recovered.mcap")
+    steps = recover(log, tmp_path / "recovered.mcap").steps
     run = read_run(tmp_path / "recovered.mcap", allow_interrupted=True)
     assert steps == len(run.tags) > 0
 
@@ -544,7 +544,8 @@ def test_render_records_camera_frames_beside_the_steps(tmp_path):
         assert log_time == state_stamp[image.header.frame_id] and image.format == "jpeg"
         assert Image.open(io.BytesIO(bytes(image.data))).size == (64, 48)
     recovered = tmp_path / "recovered.mcap"
-    assert recover(tmp_path / "run.mcap", recovered) == 24
+    (tmp_path / "cut.mcap").write_bytes((tmp_path / "run.mcap").read_bytes()[:-1])  # recover refuses a closed log
+    assert recover(tmp_path / "cut.mcap", recovered).steps == 24
     with open(recovered, "rb") as f:
         assert len(list(make_reader(f).iter_messages(topics=["/sim/camera/image/compressed"]))) == 6
 

@@ -159,7 +159,8 @@ def probe_messages(probe: ProbeTag, stamp: int) -> dict[str, bytes]:
 def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_keeps_them_apart(tmp_path):
     from aril_ros_nodes.orchestrator import StepRecorder
 
-    writer = RunLogWriter(tmp_path / "run.mcap", {"env": "test", "obs_names": ["x", "y"], "action_names": ["u"]})
+    writer = RunLogWriter(tmp_path / "run.mcap", {"env": "test", "mode": "sensory", "eps": 0.0, "obs_names": ["x", "y"],
+                                                  "zero_order": [True, False], "action_names": ["u"]})
     recorder = StepRecorder(writer)
     recorder.start_episode(0)
     first, second = (StepTag(0, 0), 0), (StepTag(0, 1), 50_000_000)
@@ -176,8 +177,10 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
     for topic, raw in step_messages(*second, done=True).items():
         recorder.on_message(topic, raw)
     assert recorder.steps_written == 2 and recorder.probes_answered == 2 and recorder.episode_done
-    writer.close(interrupted=False)
-    assert recover(tmp_path / "run.mcap", tmp_path / "recovered.mcap") == 2
+    writer.close(interrupted=False, episodes_completed=1)
+    complete = (tmp_path / "run.mcap").read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(complete[:-1])  # a closed log is not recovered: cut its final magic
+    assert recover(tmp_path / "cut.mcap", tmp_path / "recovered.mcap").steps == 2
     for log in (tmp_path / "run.mcap", tmp_path / "recovered.mcap"):
         run = read_run(log, allow_interrupted=True)
         np.testing.assert_array_equal(run.obs, [[0.0, 1.0], [1.0, 1.0]])  # the steps, as without probes
