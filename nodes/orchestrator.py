@@ -559,13 +559,18 @@ class GraphClient:
         external policy, the one node publishing on action that this run did not start."""
         from aril_ros_nodes.common import endpoint_text
 
+        guards = [*self.guards.values(), *self.service_guards]
+        admitted = {guard: guard.admit() for guard in guards}  # this waits until the graph knows their node names
         names = [name for name, _ in self.node.get_node_names_and_namespaces()]
         impostors = sorted({name for name in names if name in own_nodes and names.count(name) > 1})
         if impostors:
+            endpoints = [f"{endpoint_text(info)} on {guard.what}" for guard, infos in admitted.items()
+                         for info in infos if info.node_name in impostors]
             raise GraphError(f"more than one node named {', '.join(impostors)} in the run's domain: another process "
-                             "passes for one of this run's nodes")
-        for guard in [*self.guards.values(), *self.service_guards]:
-            strangers = [info for info in guard.admit() if info.node_name not in own_nodes]
+                             "passes for one of this run's nodes (" + ("; ".join(endpoints) or "no step endpoints")
+                             + ")")
+        for guard, infos in admitted.items():
+            strangers = [info for info in infos if info.node_name not in own_nodes]
             if external_policy and guard is self.guards[P.ACTION] and len(strangers) == 1:
                 continue  # the external policy node the user started
             if strangers:

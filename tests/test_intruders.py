@@ -33,27 +33,30 @@ import rclpy
 from sensor_msgs.msg import JointState
 from aril_ros_nodes.common import STEP_QOS
 
-topic, frame_id, listeners, at, MARK = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4], float(sys.argv[5])
+topic, frame_id, listeners, at, MARK, name = sys.argv[1:4] + sys.argv[4:5] + [float(sys.argv[5]), sys.argv[6]]
+listeners = int(listeners)
 rclpy.init()
-node = rclpy.create_node("intruder")
+node = rclpy.create_node(name)
 seen = []
 node.create_subscription(JointState, "sim/state", lambda msg: seen.append(msg.header.frame_id), STEP_QOS)
-while at not in seen:
+while at != "start" and at not in seen:
     rclpy.spin_once(node, timeout_sec=0.05)
 if topic == "sim/reset":  # a service: its client's request writer is what the run sees
     from rcl_interfaces.srv import SetParametersAtomically
     from aril_ros_nodes.common import param_msg
     client = node.create_client(SetParametersAtomically, topic)
     mine = [i for i in node.get_publishers_info_by_topic("rq/sim/resetRequest", no_mangle=True)
-            if i.node_name == "intruder"]
+            if i.node_name == name]
     print("GID", bytes(mine[0].endpoint_gid).hex("."), flush=True)
     client.wait_for_service(timeout_sec=10)
     request = SetParametersAtomically.Request(parameters=[param_msg("seed", 7), param_msg("episode", 0)])
     client.call_async(request)
 else:
     pub = node.create_publisher(JointState, topic, STEP_QOS)
-    mine = [i for i in node.get_publishers_info_by_topic(topic) if i.node_name == "intruder"]
+    mine = [i for i in node.get_publishers_info_by_topic(topic) if i.node_name == name]
     print("GID", bytes(mine[0].endpoint_gid).hex("."), flush=True)
+    if at == "start":  # there before the run: it need not send anything to be refused
+        time.sleep(120)
     deadline = time.monotonic() + 10
     while pub.get_subscription_count() < listeners and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.001)
@@ -96,19 +99,20 @@ def run_with(script: str, script_args, tmp_path, *args):
     other = subprocess.Popen([sys.executable, "-c", script, *script_args], env=ros_env(domain),
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
+        printed = other.stdout.readline() if "start" in script_args else ""  # there before the run: wait for it
         policy, expert = policy_files(tmp_path, "Swimmer-v5")
         out = run_graph("env:=Swimmer-v5", "mode:=sensory", "episodes:=1", f"expert:={expert}",
                         f"record:={tmp_path / 'run.mcap'}", "step_timeout:=20", *args, domain=domain,
                         besides=[other.pid])
     finally:
         other.kill()
-        printed, _ = other.communicate()
+        printed += other.communicate()[0]
     return out, printed
 
 
-def intrude(tmp_path, topic: str, frame_id: str, listeners: int):
+def intrude(tmp_path, topic: str, frame_id: str, listeners: int, at: str = INJECT_AT, name: str = "intruder"):
     policy, _ = policy_files(tmp_path, "Swimmer-v5")
-    out, printed = run_with(INTRUDER, [topic, frame_id, str(listeners), INJECT_AT, str(MARK)], tmp_path,
+    out, printed = run_with(INTRUDER, [topic, frame_id, str(listeners), at, str(MARK), name], tmp_path,
                             f"policy:={policy}", "horizon:=1000")
     gid = re.search(r"GID (\S+)", printed)
     assert gid, printed
@@ -134,6 +138,15 @@ def test_a_foreign_publisher_stops_the_run_named_and_the_log_is_interrupted(topi
     assert not np.any(run.obs == MARK) and not np.any(run.action == MARK)  # nothing of it in the log
     with pytest.raises(RunLogError, match="interrupted"):
         read_run(tmp_path / "run.mcap")
+
+
+def test_a_node_passing_for_one_of_the_run_s_nodes_is_refused_before_the_first_step(tmp_path):
+    out, gid = intrude(tmp_path, P.STATE, "current", 0, at="start", name="expert")
+    assert out.returncode == 1, out.stderr
+    assert re.search(rf"more than one node named expert in the run's domain.*node '/expert' \(GID {re.escape(gid)}\) "
+                     "on topic /sim/state", out.stderr), out.stderr
+    run = read_run(tmp_path / "run.mcap", allow_interrupted=True)
+    assert run.end["interrupted"] is True and len(run.tags) == 0
 
 
 def test_a_byte_identical_second_action_is_counted_and_the_log_stays_exact(tmp_path):
