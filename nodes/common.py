@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import sys
+import time
 import traceback
 
 import numpy as np
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -75,6 +77,118 @@ def publishers(subscription, n: int = 1):
 
 class FatalNodeError(RuntimeError):
     """Raised inside a callback to stop the node with a clear last error (exit code 1)."""
+
+
+class IntruderError(FatalNodeError):
+    """A publisher or service client that is not one of the run's own nodes took part in a step."""
+
+
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"  # what the graph calls an endpoint whose node has not announced itself yet
+
+
+def endpoint_text(info) -> str:
+    """``node '/name' (GID 01.0f...)`` of a ``TopicEndpointInfo``: what an error names an endpoint by."""
+    name = "(not announced)" if info.node_name == UNKNOWN_NODE else info.node_name
+    return f"node '{info.node_namespace.rstrip('/')}/{name}' (GID {bytes(info.endpoint_gid).hex('.')})"
+
+
+class PublisherGuard:
+    """Who may publish on one topic, or call (or serve) one service, of a run.
+
+    rclpy hands a subscription callback no publisher GID, so a receiver cannot tell who sent a message. What it
+    can know is which publishers are matched: once :meth:`admit` has admitted those of the moment, any publisher
+    matched later is an intruder. Its matched event is queued before any message of it (DDS matches a writer
+    before it accepts its data) and marks the topic as intruded for good, even if the intruder leaves at once;
+    :meth:`check`, called before a message or a request is used, raises :class:`IntruderError` once the topic is
+    intruded or more publishers are matched than were admitted (for a service: once the graph shows a client or
+    server that was not admitted). The error names the intruder's node and GID.
+
+    For a service the publishers are the DDS writers of its request topic (its clients) and of its reply topic
+    (its servers): ``rq<service>Request`` and ``rr<service>Reply``, the mangling of every DDS rmw.
+    """
+
+    def __init__(self, node: Node, name: str, service: bool = False):
+        self.node = node
+        if service:
+            resolved = node.resolve_service_name(name)
+            self.what = f"service {resolved}"
+            self.graph_names = ((f"rq{resolved}Request", True), (f"rr{resolved}Reply", True))
+        else:
+            resolved = node.resolve_topic_name(name)
+            self.what = f"topic {resolved}"
+            self.graph_names = ((resolved, False),)
+        self.subscription = None  # a guarded subscription's matched count stands in for the graph
+        self.admitted: set[bytes] | None = None  # GIDs, once admitted
+        # publishers ever matched (DDS's total count): before admit() (a publisher may have come and gone, like a
+        # probe client the attacker closes), then those admitted; more later is an intruder, even one gone again
+        self.matched_total = 0
+        self.intruded = False
+
+    def publishers(self, wait: float = 0.0) -> list:
+        """The publishers the graph shows now; with ``wait``, once it knows every one's node name (a node
+        announces its name apart from its endpoints, so for a moment the graph has a GID alone), or after
+        ``wait`` seconds with what it knows."""
+        deadline = time.monotonic() + wait
+        while True:
+            infos = [info for name, no_mangle in self.graph_names
+                     for info in self.node.get_publishers_info_by_topic(name, no_mangle=no_mangle)]
+            if all(info.node_name != UNKNOWN_NODE for info in infos) or time.monotonic() >= deadline:
+                return infos
+            time.sleep(0.05)
+
+    def admit(self, wait: float = 5.0) -> list:
+        """Admit the publishers connected now; returns them. A guarded subscription's matched count must agree
+        with the graph (matching and the graph are both updated on discovery, not at the same instant), or a
+        publisher admitted by count but not by GID would later pass for an intruder; ``wait`` bounds the wait."""
+        deadline = time.monotonic() + wait
+        while True:
+            infos = self.publishers(wait=wait)
+            if (self.subscription is None or self.subscription.get_publisher_count() == len(infos)
+                    or time.monotonic() >= deadline):
+                break
+            time.sleep(0.05)
+        self.admitted = {bytes(info.endpoint_gid) for info in infos}
+        self.matched_total = max(self.matched_total, len(self.admitted))
+        return infos
+
+    def on_matched(self, info) -> None:
+        # marked, not raised: an exception in an event callback is also logged by the executor, with its trace
+        if self.admitted is None:
+            self.matched_total = info.total_count
+        else:
+            self.intruded |= info.total_count > self.matched_total
+
+    def check(self) -> None:
+        """Before a message or a request is used: refuse it if a publisher not admitted is (or was) matched."""
+        if self.admitted is None:
+            return
+        if self.subscription is not None:
+            self.intruded |= self.subscription.get_publisher_count() > len(self.admitted)
+        else:
+            self.intruded |= any(bytes(info.endpoint_gid) not in self.admitted for info in self.publishers())
+        if self.intruded:
+            self.refuse()
+
+    def refuse(self):
+        strangers = [info for info in self.publishers(wait=1.0) if bytes(info.endpoint_gid) not in self.admitted]
+        who = (", ".join(endpoint_text(info) for info in strangers) if strangers
+               else "a publisher that left before it could be named")
+        raise IntruderError(f"intruder on {self.what}: {who}, not one of this run's nodes; the run stops rather "
+                            "than go on with data it may have injected")
+
+    def describe(self) -> str:
+        """The admitted publishers, for an error about one of their messages."""
+        infos = [info for info in self.publishers(wait=1.0)
+                 if self.admitted is None or bytes(info.endpoint_gid) in self.admitted]
+        return " or ".join(endpoint_text(info) for info in infos) or "a publisher that has left"
+
+
+def guarded_subscription(node: Node, msg_type, topic: str, callback, qos, raw: bool = False) -> PublisherGuard:
+    """A subscription (``.subscription`` of the result) whose publishers a :class:`PublisherGuard` watches."""
+    guard = PublisherGuard(node, topic)
+    guard.subscription = node.create_subscription(msg_type, topic, callback, qos, raw=raw,
+                                                  event_callbacks=SubscriptionEventCallbacks(matched=guard.on_matched))
+    return guard
 
 
 def joint_state(header, names, position=None, effort=None) -> JointState:

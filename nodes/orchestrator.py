@@ -15,6 +15,7 @@ from __future__ import annotations
 import ctypes
 import datetime
 import fcntl
+import hashlib
 import os
 import secrets
 import signal
@@ -44,6 +45,7 @@ from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_
 
 NODE_MODULES = {name: f"aril_ros_nodes.{name}_node" for name in ("simulator", "attacker", "policy", "expert")}
 """The module each node runs as (``python -m``, from the installed package: no checkout on the path)."""
+PROBE_CLIENT = "attacker_probes"  # the node of the attacker's probe client (aril_ros_nodes.attacker_node)
 
 
 @dataclass
@@ -79,6 +81,11 @@ class GraphConfig:
 
 class GraphError(RuntimeError):
     """The run cannot go on: a node died, did not connect, or stopped answering."""
+
+
+class StepFault(GraphError):
+    """A step message the recorder refuses (a second, different copy; a malformed frame_id); the GraphClient adds
+    who published it."""
 
 
 def allocate_domain(requested: str):
@@ -185,7 +192,8 @@ class Orchestrator:
             self.eps = adversary.eps
         # who listens on action: the simulator, the recorder and, when the attack queries, the attacker's
         # probe client; the policy node waits for all of them, or step 0's action may reach only some
-        self.action_listeners = 2 + queries_victim(self.attack, adversary, cfg.search)
+        self.probes = queries_victim(self.attack, adversary, cfg.search)
+        self.action_listeners = 2 + self.probes
         # load both now: a bad file is reported before any process starts
         self.expert_meta = resolve_policy(cfg.expert, cfg.env).meta
         self.policy_meta = None if cfg.policy == "external" else resolve_policy(cfg.policy, cfg.env, cfg.mode).meta
@@ -243,12 +251,17 @@ class Orchestrator:
             if not ros.reset_client.service_is_ready():
                 missing.append(f"service {ros.node.resolve_topic_name(P.RESET_SERVICE)}")
             if not missing:
+                ros.admit(self.own_nodes(), external_policy=self.cfg.policy == "external")
                 return
             if time.monotonic() > deadline:
                 who = "an external policy node" if self.cfg.policy == "external" else "the graph"
                 raise GraphError(f"{who} did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
                                  + ", ".join(missing) + f" (node logs: {self.log_dir})")
             ros.spin(0.05)
+
+    def own_nodes(self) -> set[str]:
+        """The names of the nodes this run started, its own and (with a query attack) the attacker's probe client."""
+        return {node.name for node in self.nodes} | {GraphClient.NAME} | ({PROBE_CLIENT} if self.probes else set())
 
     def run_metadata(self) -> dict:
         cfg = self.cfg
@@ -339,6 +352,7 @@ class Orchestrator:
             "mode": self.cfg.mode, "env": self.cfg.env, "attack": self.attack, "eps": self.eps,
             "episodes": figures.pop("episodes"), "seed": self.cfg.seed, "policy": self.cfg.policy, **figures,
             "queries_per_step": round(recorder.probes_answered / max(figures["steps"], 1), 2),
+            "duplicates": recorder.duplicates,
             "steps_per_s": round(figures["steps"] / seconds, 1),
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
@@ -358,7 +372,13 @@ PRODUCERS = {P.CLOCK: "simulator", P.STATE: "simulator", P.PHYSICS: "simulator",
 
 class StepRecorder:
     """Collects each step's raw messages by step tag, and the probes asked during it by probe tag; writes a
-    step with its probes once it is complete, in order."""
+    step with its probes once it is complete, in order.
+
+    Exactly one message per topic per step: a second copy of a step message, whether the step is still open or
+    already written, is counted as a harmless duplicate (``duplicates``) when it is byte for byte the first, and
+    is a :class:`StepFault` otherwise (the step keeps the first, which is what the simulator applied). A written
+    step is never reopened. Copies are compared by digest, kept for the steps of this episode and the last.
+    """
 
     def __init__(self, writer: RunLogWriter | None):
         self.writer = writer
@@ -374,15 +394,19 @@ class StepRecorder:
         self.frames_written = 0
         self.probes: dict[StepTag, dict[ProbeTag, dict[str, bytes]]] = {}  # of the steps not written yet
         self.probes_answered = 0
+        self.written: dict[StepTag, dict[str, bytes]] = {}  # digests of the written steps' messages, by tag
+        self.last_stamp = -1  # the sim time of the last written step (its /clock)
+        self.duplicates = 0  # harmless byte-identical copies of step messages
 
     def start_episode(self, episode: int) -> None:
         self.episode, self.episode_done = episode, False
         self.current = EpisodeStats(episode)
+        self.written = {tag: digests for tag, digests in self.written.items() if tag.episode >= episode - 1}
 
     def on_frame(self, raw: bytes) -> None:
         """A camera frame goes into the log right after its step (log times stay in sim-time order)."""
         stamp, frame_id = cdr_header(raw)
-        tag = StepTag.parse(frame_id)
+        tag = step_tag_of(P.CAMERA, frame_id)
         if self.last_written is not None and tag <= self.last_written:
             self._write_frame(stamp, raw)
         else:
@@ -395,7 +419,11 @@ class StepRecorder:
 
     def on_message(self, topic: str, raw: bytes) -> None:
         if topic == P.CLOCK:
-            self.clock[cdr_stamp(raw)] = raw
+            stamp = cdr_stamp(raw)
+            if stamp <= self.last_stamp or stamp in self.clock:
+                self.duplicates += 1  # a Clock is its stamp alone: a second one for a stamp is the same bytes
+                return
+            self.clock[stamp] = raw
         else:
             stamp, frame_id = cdr_header(raw)
             if P.is_probe(frame_id):  # a query-based attack's question to the policy, or the answer
@@ -403,7 +431,13 @@ class StepRecorder:
                 if self.last_written is None or probe.step > self.last_written:  # else a late repeat of a probe
                     self.probes.setdefault(probe.step, {}).setdefault(probe, {})[topic] = raw
             else:
-                tag = StepTag.parse(frame_id)
+                tag = step_tag_of(topic, frame_id)
+                if self.last_written is not None and tag <= self.last_written:
+                    self.repeated(tag, topic, raw, self.written.get(tag, {}).get(topic), "was written already")
+                    return
+                if topic in self.pending.get(tag, {}):
+                    self.repeated(tag, topic, raw, digest(self.pending[tag][topic]), "has one already")
+                    return
                 if tag not in self.pending:
                     self.pending[tag] = {}
                     self.order.append(tag)
@@ -411,6 +445,15 @@ class StepRecorder:
                 if topic == P.STATE:
                     self.stamp[tag] = stamp
         self.flush()
+
+    def repeated(self, tag: StepTag, topic: str, raw: bytes, first: bytes | None, step_has: str) -> None:
+        """A second message on ``topic`` for step ``tag``, whose first has digest ``first`` (None: forgotten)."""
+        if first == digest(raw):
+            self.duplicates += 1
+            return
+        raise StepFault(f"step {tag}: a second message on {topic}, different from the first (the step {step_has}; "
+                        "one message per topic per step)" if first is not None else
+                        f"step {tag}: a message on {topic} for a step written more than an episode ago")
 
     def arrived(self, tag: StepTag) -> set[str]:
         """The step topics of ``tag`` heard so far (its ``/clock`` joins it by the state's stamp)."""
@@ -438,6 +481,8 @@ class StepRecorder:
             probes = [asked[probe] for probe in sorted(asked)]
             if self.writer is not None:
                 self.writer.write_step(stamp, msgs, probes)
+            self.written[tag] = {topic: digest(raw) for topic, raw in msgs.items()}
+            self.last_stamp = stamp
             self.probes_answered += len(probes)
             self.last_written = tag
             if tag in self.frames:
@@ -465,8 +510,23 @@ class StepRecorder:
         return "waiting for " + ", ".join(missing)
 
 
+def step_tag_of(topic: str, frame_id: str) -> StepTag:
+    try:
+        return StepTag.parse(frame_id)
+    except ValueError as err:
+        raise StepFault(f"a message on {topic} with a malformed frame_id: {err}") from None
+
+
+def digest(raw: bytes) -> bytes:
+    return hashlib.blake2b(raw, digest_size=16).digest()
+
+
 class GraphClient:
-    """The orchestrator's own ROS node: raw subscriptions for the recorder and the reset client."""
+    """The orchestrator's own ROS node: raw subscriptions for the recorder and the reset client, and the guards of
+    every step topic and service (:class:`aril_ros_nodes.common.PublisherGuard`): once :meth:`admit` has checked
+    who is connected, a publisher or service client that joins later stops the run, named."""
+
+    NAME = "orchestrator"
 
     def __init__(self, recorder: StepRecorder, camera: bool = False):
         import rclpy
@@ -477,23 +537,28 @@ class GraphClient:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import String
 
-        from aril_ros_nodes.common import READY_QOS, STEP_QOS
+        from aril_ros_nodes.common import READY_QOS, STEP_QOS, PublisherGuard, guarded_subscription
 
         self._rclpy = rclpy
         # no rclpy signal handlers: Ctrl-C must reach the orchestrator's own handler
         rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node("orchestrator")
+        self.node = rclpy.create_node(self.NAME)
         classes = {"sensor_msgs/msg/JointState": JointState, "rosgraph_msgs/msg/Clock": Clock}
-        self.subscriptions = {
-            topic: self.node.create_subscription(classes[msg_type], topic,
-                                                 lambda raw, topic=topic: recorder.on_message(topic, raw),
-                                                 STEP_QOS, raw=True)
+        self.guards = {
+            topic: guarded_subscription(self.node, classes[msg_type], topic,
+                                        lambda raw, topic=topic: self.receive(topic, recorder.on_message, topic, raw),
+                                        STEP_QOS, raw=True)
             for topic, msg_type in P.MESSAGE_TYPES.items()}
         if camera:
             from sensor_msgs.msg import CompressedImage
 
-            self.subscriptions[P.CAMERA] = self.node.create_subscription(CompressedImage, P.CAMERA, recorder.on_frame,
-                                                                         STEP_QOS, raw=True)
+            self.guards[P.CAMERA] = guarded_subscription(self.node, CompressedImage, P.CAMERA,
+                                                         lambda raw: self.receive(P.CAMERA, recorder.on_frame, raw),
+                                                         STEP_QOS, raw=True)
+        self.service_guards = [PublisherGuard(self.node, name, service=True)
+                               for name in (P.RESET_SERVICE, P.SET_STATE_SERVICE)]
+        # what stops the run, raised by spin(): raised inside a callback it would also be logged by the executor
+        self.fault: GraphError | None = None
         self.ready: set[str] = set()
         self.node.create_subscription(String, P.READY, lambda msg: self.ready.add(msg.data), READY_QOS)
         self.reset_client = self.node.create_client(SetParametersAtomically, P.RESET_SERVICE)
@@ -502,11 +567,61 @@ class GraphClient:
         self.executor.add_node(self.node)
 
     def spin(self, timeout: float) -> None:
+        from aril_ros_nodes.common import IntruderError
+
         self.executor.spin_once(timeout_sec=timeout)
+        try:
+            for guard in [*self.guards.values(), *self.service_guards]:  # an intruder that has not sent yet
+                guard.check()
+        except IntruderError as err:
+            self.fault = self.fault or GraphError(str(err))
+        if self.fault is not None:
+            raise self.fault
+
+    def receive(self, topic: str, handler, *args) -> None:
+        """A message on ``topic`` to ``handler``, once its publisher is known to be admitted; a fault in it names
+        the admitted publisher(s), the only ones it can have come from. After a fault nothing more is taken."""
+        from aril_ros_nodes.common import IntruderError
+
+        if self.fault is not None:
+            return
+        guard = self.guards[topic]
+        try:
+            guard.check()
+            handler(*args)
+        except IntruderError as err:
+            self.fault = GraphError(str(err))
+        except StepFault as err:
+            self.fault = StepFault(f"{err}, from {guard.describe()}")
+
+    def admit(self, own_nodes: set[str], external_policy: bool) -> None:
+        """Admit the publishers and service peers connected now, if each is one of ``own_nodes`` (the names of
+        the nodes this run started: unique in the domain, so no other node can pass for one) or, with an
+        external policy, the one node publishing on action that this run did not start."""
+        from aril_ros_nodes.common import endpoint_text
+
+        guards = [*self.guards.values(), *self.service_guards]
+        admitted = {guard: guard.admit() for guard in guards}  # this waits until the graph knows their node names
+        names = [name for name, _ in self.node.get_node_names_and_namespaces()]
+        impostors = sorted({name for name in names if name in own_nodes and names.count(name) > 1})
+        if impostors:
+            endpoints = [f"{endpoint_text(info)} on {guard.what}" for guard, infos in admitted.items()
+                         for info in infos if info.node_name in impostors]
+            raise GraphError(f"more than one node named {', '.join(impostors)} in the run's domain: another process "
+                             "passes for one of this run's nodes (" + ("; ".join(endpoints) or "no step endpoints")
+                             + ")")
+        for guard, infos in admitted.items():
+            strangers = [info for info in infos if info.node_name not in own_nodes]
+            if external_policy and guard is self.guards[P.ACTION] and len(strangers) == 1:
+                continue  # the external policy node the user started
+            if strangers:
+                raise GraphError(f"intruder on {guard.what}: " + ", ".join(endpoint_text(i) for i in strangers)
+                                 + ", not one of this run's nodes" + (" (an external policy publishes on action "
+                                                                      "alone)" if external_policy else ""))
 
     def unfed_topics(self) -> list[str]:
         """Step topics whose publisher is not yet matched with the recorder."""
-        return [topic for topic, sub in self.subscriptions.items() if sub.get_publisher_count() < 1]
+        return [topic for topic, guard in self.guards.items() if guard.subscription.get_publisher_count() < 1]
 
     def reset(self, seed: int, episode: int, check, timeout: float) -> None:
         from aril_ros_nodes.common import param_msg

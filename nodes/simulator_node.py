@@ -13,7 +13,12 @@ tagged ``"<episode>/<step>/probe/<k>"``, is ignored without one), publishes
 ``sim/reward`` for that step and then the next step's state, until the episode ends.
 ``sim/set_state`` replaces the whole physical state at once (the physical attack) and publishes the
 ``observation`` of the new state for the policy. A malformed action (wrong length, non-finite) stops
-the node with a clear error. See msgs_doc/README.md.
+the node with a clear error.
+
+Who it takes orders from is fixed at the first ``sim/reset``: the publisher on ``action`` then (one at most: the
+policy) and the clients of its two services. A publisher or client that appears later is an intruder: the node
+stops, naming its node and GID, before it applies anything (:class:`aril_ros_nodes.common.PublisherGuard`).
+See msgs_doc/README.md.
 """
 from __future__ import annotations
 
@@ -27,8 +32,9 @@ from aril_ros import protocol as P
 from aril_ros.envs import HORIZON, MujocoSim
 from aril_ros.protocol import StepTag, stamp_ns
 from aril_ros.registry import DEFAULT_ENV
-from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
-                                   publishers, request_params, step_header, subscribers)
+from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, PublisherGuard, ReadyAnnouncer, declared,
+                                   endpoint_text, guarded_subscription, joint_state, main_for, publishers,
+                                   request_params, step_header, subscribers)
 
 
 class SimulatorNode(Node):
@@ -44,9 +50,11 @@ class SimulatorNode(Node):
         self.state_pub = self.create_publisher(JointState, P.STATE, STEP_QOS)
         self.reward_pub = self.create_publisher(JointState, P.REWARD, STEP_QOS)
         self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
-        action_sub = self.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
+        self.action_guard = guarded_subscription(self, JointState, P.ACTION, self.on_action, STEP_QOS)
         self.create_service(SetParametersAtomically, P.RESET_SERVICE, self.on_reset)
         self.create_service(SetParametersAtomically, P.SET_STATE_SERVICE, self.on_set_state)
+        self.service_guards = {name: PublisherGuard(self, name, service=True)
+                               for name in (P.RESET_SERVICE, P.SET_STATE_SERVICE)}
         self.render_every = declared(self, "render_every", 0)
         self.camera = self._camera(declared(self, "render_size", "320x240")) if self.render_every > 0 else None
         physical = declared(self, "mode", "sensory") == "physical"
@@ -56,7 +64,7 @@ class SimulatorNode(Node):
             "a subscriber on sim/reward": subscribers(self.reward_pub, 1),
             "a subscriber on /clock": subscribers(self.clock_pub, 1),
             "2 subscribers on observation": subscribers(self.observation_pub, 2 if physical else 0),
-            "a publisher on action (the policy)": publishers(action_sub),
+            "a publisher on action (the policy)": publishers(self.action_guard.subscription),
             **({"a subscriber on the camera": subscribers(self.camera_pub, 1)} if self.camera else {}),
         })
         self.get_logger().info(f"{self.sim.layout.env_id}: obs {len(self.obs_names)}, act {self.act_dim}")
@@ -88,7 +96,21 @@ class SimulatorNode(Node):
         if self.camera is not None and self.tag.step % self.render_every == 0:
             self.camera_pub.publish(self._image_type(header=header, format="jpeg", data=self.camera.jpeg()))
 
+    def admit_peers(self) -> None:
+        """At the first reset: the one publisher on action (the policy) and the services' clients of now are
+        the ones this node takes orders from for the rest of the run."""
+        if self.action_guard.admitted is not None:
+            return
+        policies = self.action_guard.admit()
+        if len(policies) > 1:
+            raise FatalNodeError(f"{len(policies)} publishers on action, one (the policy) expected: "
+                                 + ", ".join(endpoint_text(info) for info in policies))
+        for guard in self.service_guards.values():
+            guard.admit()
+
     def on_reset(self, request, response):
+        self.admit_peers()
+        self.service_guards[P.RESET_SERVICE].check()
         params = request_params(request)
         try:
             seed, episode = int(params["seed"]), int(params["episode"])
@@ -103,6 +125,7 @@ class SimulatorNode(Node):
         return response
 
     def on_set_state(self, request, response):
+        self.service_guards[P.SET_STATE_SERVICE].check()
         params = request_params(request)
         response.result.successful = False
         if self.tag is None or params.get("tag") != str(self.tag):
@@ -118,12 +141,13 @@ class SimulatorNode(Node):
         return response
 
     def on_action(self, msg) -> None:
+        self.action_guard.check()
         if P.is_probe(msg.header.frame_id):
             return  # a query-based attack's question to the policy, not the step's action
         try:
             tag = StepTag.parse(msg.header.frame_id)
         except ValueError as err:
-            raise FatalNodeError(f"action with a bad header: {err}") from None
+            raise FatalNodeError(f"action with a bad header from {self.action_guard.describe()}: {err}") from None
         if tag != self.tag:
             self.get_logger().warning(f"ignoring an action for step {tag}; waiting for step {self.tag}")
             return

@@ -422,9 +422,9 @@ def test_set_state_validates_its_request(tmp_path):
     from aril_ros_nodes.common import param_msg
 
     def call(service, **params):
-        client = node.create_client(SetParametersAtomically, service)
+        client = clients[service]
         deadline = time.monotonic() + 20
-        while not client.service_is_ready() and time.monotonic() < deadline:
+        while not all(c.service_is_ready() for c in clients.values()) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
         request = SetParametersAtomically.Request()
         request.parameters = [param_msg(k, v) for k, v in params.items()]
@@ -434,6 +434,8 @@ def test_set_state_validates_its_request(tmp_path):
         return future.result().result
 
     with simulator_and_prober(cwd=tmp_path) as (_, node, executor):
+        # both clients connected before the first reset: the simulator takes no client that joins later
+        clients = {name: node.create_client(SetParametersAtomically, name) for name in ("sim/reset", "sim/set_state")}
         assert call("sim/reset", seed=0, episode=0).successful
         sim_here = MujocoSim("Swimmer-v5")
         state_size = sim_here.state_size

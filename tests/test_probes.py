@@ -267,6 +267,10 @@ def test_the_policy_node_is_ready_only_once_every_listener_on_action_has_matched
         listeners.append(peer.create_subscription(JointState, P.ACTION, lambda msg: None, STEP_QOS))
         assert spin_until(lambda: announced, 15) and announced == ["policy"]
     finally:
+        # destroyed, not only shut down: its observation publisher would stay in the domain, which this process's
+        # next run takes again (free_domain), and that run would stop it as an intruder
+        executor.shutdown()
+        peer.destroy_node()
         rclpy.try_shutdown(context=context)
         node.kill()
         node.wait()
