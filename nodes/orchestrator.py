@@ -35,7 +35,7 @@ from aril_ros.adversary_net import load_adversary
 from aril_ros.args import arg
 from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
-from aril_ros.mcap_log import RunLogWriter, cdr_header, cdr_stamp
+from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.provenance import git_revision
@@ -558,7 +558,7 @@ class GraphClient:
         self.service_guards = [PublisherGuard(self.node, name, service=True)
                                for name in (P.RESET_SERVICE, P.SET_STATE_SERVICE)]
         # what stops the run, raised by spin(): raised inside a callback it would also be logged by the executor
-        self.fault: GraphError | None = None
+        self.fault: GraphError | RunLogError | None = None
         self.ready: set[str] = set()
         self.node.create_subscription(String, P.READY, lambda msg: self.ready.add(msg.data), READY_QOS)
         self.reset_client = self.node.create_client(SetParametersAtomically, P.RESET_SERVICE)
@@ -593,6 +593,8 @@ class GraphClient:
             self.fault = GraphError(str(err))
         except StepFault as err:
             self.fault = StepFault(f"{err}, from {guard.describe()}")
+        except RunLogError as err:  # the log could not be written (a full disk): raised from spin, not in rclpy's callback
+            self.fault = err
 
     def admit(self, own_nodes: set[str], external_policy: bool) -> None:
         """Admit the publishers and service peers connected now, if each is one of ``own_nodes`` (the names of
