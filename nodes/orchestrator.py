@@ -133,7 +133,7 @@ def allocate_domain(requested: str):
 
 
 def _detach_but_die_with_parent() -> None:
-    # Own session: a terminal's Ctrl-C reaches only the orchestrator, which stops the nodes in order.
+    # Own session: a terminal's Ctrl-C reaches only the orchestrator, which then stops the nodes itself.
     # Parent-death signal: if the orchestrator is killed outright, no node is left running.
     os.setsid()
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
