@@ -10,9 +10,10 @@ import shlex
 import typing
 
 
-def arg(default, help: str):
-    """A dataclass field with a default and a help text."""
-    return dataclasses.field(default=default, metadata={"help": help})
+def arg(default, help: str, low=None, high=None):
+    """A dataclass field with a default, a help text and, for a number, the range ``low..high`` (either
+    end optional) that :func:`check_ranges` holds it to."""
+    return dataclasses.field(default=default, metadata={"help": help, "low": low, "high": high})
 
 
 class ArgumentError(ValueError):
@@ -44,7 +45,24 @@ def parse_args(cls, argv: list[str]):
         if key not in names:
             raise ArgumentError(f"unknown argument {key!r}; known: {', '.join(names)}")
         values[key] = _convert(key, text, types[key])
-    return cls(**values)
+    return check_ranges(cls(**values))
+
+
+def _range_text(field) -> str:
+    low, high = field.metadata.get("low"), field.metadata.get("high")
+    if low is None or high is None:
+        return "" if low is None and high is None else f">= {low}" if high is None else f"<= {high}"
+    return f"{low}..{high}"
+
+
+def check_ranges(cfg):
+    """``cfg`` itself, once every number is within the range its field declares (a NaN is within none);
+    raises :class:`ArgumentError` naming the argument, the value and the range."""
+    for field in dataclasses.fields(cfg):
+        low, high, value = field.metadata.get("low"), field.metadata.get("high"), getattr(cfg, field.name)
+        if not ((low is None or value >= low) and (high is None or value <= high)):
+            raise ArgumentError(f"{field.name}:={value} is out of range: allowed {_range_text(field)}")
+    return cfg
 
 
 def command_line(prog: str, cfg) -> str:
@@ -56,7 +74,8 @@ def command_line(prog: str, cfg) -> str:
 def usage(cls, prog: str, summary: str) -> str:
     lines = [f"usage: {prog} [key:=value ...]", "", summary, "", "arguments:"]
     for f in dataclasses.fields(cls):
-        lines.append(f"  {f.name + ':=':<16} {f.metadata.get('help', '')} (default: {f.default!r})")
+        allowed = f"; allowed {_range_text(f)}" if _range_text(f) else ""
+        lines.append(f"  {f.name + ':=':<16} {f.metadata.get('help', '')} (default: {f.default!r}{allowed})")
     return "\n".join(lines)
 
 

@@ -112,9 +112,18 @@ def attack_for_mode(mode: str, attack: str = "") -> str:
     return name
 
 
+MAX_EPS = 1.0
+"""The largest eps an attack may be given: the top of ``aril calibrate-eps``'s sweep (the calibrated ones are
+0.005-0.3). The zero-order entries are joint angles (rad) and heights (m); at pi the physical attack already
+makes MuJoCo unstable (HalfCheetah, Swimmer), at 1.0 not yet."""
+
+
 def attack_budget(env_id: str, mode: str, attack: str, eps: float) -> float:
-    """The eps an attack runs with: ``eps`` when given; unset (0), the calibrated one for the env and
-    mode, except for aril_a, whose adversary file carries its own (0 here lets it decide)."""
+    """The eps an attack runs with: ``eps`` when given (0 < eps <= :data:`MAX_EPS`); unset (0), the calibrated
+    one for the env and mode, except for aril_a, whose adversary file carries its own (0 here lets it decide)."""
+    if not (eps == 0 or 0 < eps <= MAX_EPS):  # NaN fails both
+        raise ValueError(f"eps:={eps} is out of range: allowed 0 < eps <= {MAX_EPS} (joint angles in rad, heights "
+                         f"in m; the top of aril calibrate-eps's sweep), or 0 for the calibrated one")
     if attack == "none":
         return 0.0
     if eps or attack == "aril_a":

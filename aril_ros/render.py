@@ -26,6 +26,14 @@ class RenderError(RuntimeError):
     """No offscreen GL backend: says which Debian packages give one."""
 
 
+def frame_size(text: str) -> tuple[int, int]:
+    """``(width, height)`` of a ``<width>x<height>`` frame size such as ``320x240``."""
+    width, x, height = text.lower().partition("x")
+    if not (x and width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+        raise ValueError(f"render_size:={text} is not a frame size: <width>x<height> in pixels, e.g. 320x240")
+    return int(width), int(height)
+
+
 GL_HELP = ("offscreen rendering failed: MuJoCo needs Mesa's EGL (apt-get install libegl-mesa0 libgl1-mesa-dri) "
            "or, with MUJOCO_GL=osmesa, OSMesa (apt-get install libosmesa6)")
 

@@ -136,7 +136,7 @@ class AttackerNode(Node):
 
 
 def main(args=None):
-    raise SystemExit(main_for(AttackerNode, args))
+    main_for(AttackerNode, args)
 
 
 if __name__ == "__main__":

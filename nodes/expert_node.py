@@ -17,7 +17,7 @@ class ExpertNode(PolicyNode):
 
 
 def main(args=None):
-    raise SystemExit(main_for(ExpertNode, args))
+    main_for(ExpertNode, args)
 
 
 if __name__ == "__main__":

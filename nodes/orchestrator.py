@@ -6,9 +6,10 @@ of its own; the orchestrator's node resets the simulator at each episode start (
 :func:`aril_ros.step.episode_seed`), records every step topic (raw CDR, see :mod:`aril_ros.mcap_log`)
 once the step is complete (:func:`aril_ros.step.missing_topics`) and its probes answered, prints
 per-episode figures and one JSON summary line (:class:`aril_ros.step.EpisodeStats`; ``queries_per_step``:
-probes answered per step), and stops every node on success, on Ctrl-C /
-SIGTERM, when a node dies (naming it and its last error) and when a step makes no progress for
-``step_timeout`` seconds.
+probes answered per step), and stops every node, all at once, on success, on Ctrl-C, SIGTERM or
+SIGHUP (:class:`RunInterrupted`), when a node dies (naming how, and its last error line) and when a step
+makes no progress for ``step_timeout`` seconds. Every end but success closes the log as interrupted, with
+the reason.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import datetime
 import fcntl
 import hashlib
 import os
+import re
 import secrets
 import signal
 import stat
@@ -32,15 +34,16 @@ import numpy as np
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.adversary_net import load_adversary
-from aril_ros.args import arg
+from aril_ros.args import ArgumentError, arg, check_ranges
 from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_stamp
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.provenance import git_revision
-from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MODES,
-                               PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
+from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MAX_EPS,
+                               MODES, PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
+from aril_ros.render import frame_size
 from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_episodes
 
 NODE_MODULES = {name: f"aril_ros_nodes.{name}_node" for name in ("simulator", "attacker", "policy", "expert")}
@@ -55,27 +58,32 @@ class GraphConfig:
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
-    eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one "
-                          "for env and mode, bundled with aril_ros; aril_a: its adversary's)")
-    k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)")
+    eps: float = arg(0.0, f"L-infinity bound of the perturbation on the zero-order entries, at most {MAX_EPS} "
+                          "(0: the calibrated one for env and mode, bundled with aril_ros; aril_a: its adversary's)")
+    k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)", low=0, high=1000)
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
-                         "node asked about all (probes), the most damaging applied (0: no search)")
-    episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)")
-    seed: int = arg(0, "seed of the first episode and of the attack noise")
+                         "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
+    episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)", low=1, high=100_000)
+    # seeds are non-negative (numpy, gymnasium), and seed + episodes stays within 32 bits
+    seed: int = arg(0, "seed of the first episode and of the attack noise", low=0, high=2**31 - 1)
     policy: str = arg("bundled", f"bundled (the default bundled policy: the {DEFENSES[DEFAULT_POLICY]} learner), "
                                  f"{', '.join(BUNDLED_POLICIES)} ({' and '.join(PER_MODE_POLICIES)}: the one trained "
                                  "against mode:=), a policy file, or external (start none, wait for one)")
     expert: str = arg("expert", "the labelling expert: a bundled name or a policy file")
-    horizon: int = arg(HORIZON, "steps per episode")
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
     record: str = arg("", "MCAP file to record to, created anew (default: runs/<time>-<env>-<mode>-<random>.mcap; "
                           "off: no file)")
-    domain: str = arg("auto", "ROS_DOMAIN_ID for this run (auto: a free one, held by a lock file)")
-    connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect")
-    step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck")
+    domain: str = arg("auto", "ROS_DOMAIN_ID for this run: 0-101 or 215-232 (auto: a free one of those, held "
+                              "by a lock file)")
+    # below a second a loaded machine's DDS discovery or a slow step would stop a healthy run; an hour is a typo
+    connect_timeout: float = arg(30.0, "seconds to wait for every node (and an external policy) to connect",
+                                 low=1.0, high=3600.0)
+    step_timeout: float = arg(10.0, "seconds without progress before the run is stopped as stuck", low=1.0,
+                              high=3600.0)
     render: bool = arg(False, "record camera frames: the simulator renders offscreen (MuJoCo on the CPU, MUJOCO_GL=egl "
                               "unless set) and publishes sim/camera/image/compressed (JPEG), the log keeps them")
-    render_every: int = arg(5, "render:=true: a frame every this many steps")
+    render_every: int = arg(5, "render:=true: a frame every this many steps", low=1)
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
 
 
@@ -88,10 +96,40 @@ class StepFault(GraphError):
     who published it."""
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """A signal (Ctrl-C, SIGTERM, SIGHUP) stopped the run. A KeyboardInterrupt, so a caller that stops
+    on Ctrl-C stops on it; ``exit_code`` is the shell's for a process ended by that signal."""
+
+    def __init__(self, signum: int):
+        self.signal_name = signal.Signals(signum).name
+        self.exit_code = 128 + signum
+        super().__init__(f"interrupted by {self.signal_name}")
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals that stop a run in order (nodes stopped, log closed as interrupted)."""
+
+SAFE_DOMAINS = (*range(102), *range(215, 233))
+"""ROS domain ids whose DDS ports (7400 + 250 * id and up) keep clear of Linux's ephemeral ports
+(32768-60999), as the ROS 2 docs list them; Fast-DDS refuses any id above 232 outright."""
+
+
+def domain_candidates(requested: str) -> list[int]:
+    """The ids ``domain:=requested`` may take: that one, or for ``auto`` every safe one but 0 (every ROS
+    tool's default), starting at one chosen by the process id so that runs starting together rarely contend."""
+    if requested == "auto":
+        ids = SAFE_DOMAINS[1:]
+        return [ids[(os.getpid() + i) % len(ids)] for i in range(len(ids))]
+    if not (requested.isdigit() and int(requested) in SAFE_DOMAINS):
+        raise ArgumentError(f"domain:={requested} is not an allowed ROS domain id: auto, 0-101 or 215-232 (ids in "
+                            "between share ports with Linux's ephemeral range; Fast-DDS refuses ids above 232)")
+    return [int(requested)]
+
+
 def allocate_domain(requested: str):
     """A ROS domain id no other aril_ros run on this machine holds, and the open lock file holding it."""
+    candidates = domain_candidates(requested)
     lock_dir = _domain_lock_dir()
-    candidates = [int(requested)] if requested != "auto" else [1 + (os.getpid() + i) % 200 for i in range(200)]
     for domain in candidates:
         try:
             handle = _open_lock(lock_dir / f"{domain}.lock")
@@ -103,7 +141,7 @@ def allocate_domain(requested: str):
         except OSError:
             handle.close()
     raise GraphError(f"ROS domain {requested} is held by another aril_ros run" if requested != "auto"
-                     else "no free ROS domain id (1..200)")
+                     else "no free ROS domain id (1-101, 215-232)")
 
 
 def _domain_lock_dir() -> Path:
@@ -138,7 +176,7 @@ def _open_lock(path: Path):
 
 
 def _detach_but_die_with_parent() -> None:
-    # Own session: a terminal's Ctrl-C reaches only the orchestrator, which stops the nodes in order.
+    # Own session: a terminal's Ctrl-C reaches only the orchestrator, which then stops the nodes itself.
     # Parent-death signal: if the orchestrator is killed outright, no node is left running.
     os.setsid()
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
@@ -160,26 +198,66 @@ class NodeProcess:
     def exited(self) -> int | None:
         return self.proc.poll()
 
-    def last_error(self) -> str:
-        lines = [ln.strip() for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()]
-        fatal = [ln for ln in lines if "FATAL" in ln or "Error" in ln]
-        return (fatal or lines or ["(no output)"])[-1]
+    def death(self) -> str:
+        """How the node ended and the last error its log shows (the node has exited)."""
+        code = self.proc.returncode
+        how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with code {code}"
+        error = last_error_line(self.log_path)
+        if error is None:
+            return f"node '{self.name}' {how}; its log has no error line (full log: {self.log_path})"
+        return f"node '{self.name}' {how}: {error} (full log: {self.log_path})"
 
-    def stop(self, grace: float = 3.0) -> None:
+    def interrupt(self) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(grace)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+
+    def reap(self, deadline: float) -> None:
+        """Wait for the interrupted node until ``deadline`` (monotonic), then kill it."""
+        try:
+            self.proc.wait(max(deadline - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
         self._log.close()
+
+
+# rclpy's "[ERROR] [<time>] [<node>]: ..." and "[FATAL]", our nodes' "[<node>] FATAL: ...", a traceback's
+# closing "SomeError: ..." line; and rclpy's "[WARN]" or a Python warning ("...: SomeWarning: ...")
+ERROR_LINE = re.compile(r"^\[(ERROR|FATAL)\]|\] FATAL: |^[\w.]+(Error|Exception|Interrupt)\b")
+WARNING_LINE = re.compile(r"^\[WARN\]|\b\w+Warning: ")
+
+
+def last_error_line(log_path: Path) -> str | None:
+    """A node log's last error line (a FATAL or ERROR, an exception), else its last warning; ``None`` if it
+    has neither: a start-up INFO line says nothing about why a node ended."""
+    lines = [ln.strip() for ln in log_path.read_text(errors="replace").splitlines()]
+    for pattern in (ERROR_LINE, WARNING_LINE):
+        found = [ln for ln in lines if pattern.search(ln)]
+        if found:
+            return found[-1]
+    return None
+
+
+def stop_nodes(nodes: list[NodeProcess], grace: float = 3.0) -> None:
+    """Stop every node at once: SIGINT to all, then one shared deadline, SIGKILL for any still running."""
+    for node in nodes:
+        node.interrupt()
+    deadline = time.monotonic() + grace
+    for node in nodes:
+        node.reap(deadline)
 
 
 class Orchestrator:
     def __init__(self, cfg: GraphConfig, log=print):
-        self.cfg, self.log = cfg, log
+        self.cfg, self.log = check_ranges(cfg), log
+        domain_candidates(cfg.domain)  # a bad id is refused here, before any file is loaded
         self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
+        for name in ("attack_file", "search"):  # aril_a's alone: elsewhere it would be silently ignored
+            if getattr(cfg, name) and self.attack != "aril_a":
+                raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:=aril_a only, got "
+                                    f"attack:={self.attack}")
+        if cfg.render:
+            frame_size(cfg.render_size)
         if self.attack in WHITE_BOX and cfg.policy == "external":
             raise GraphError(f"attack:={self.attack} is white-box and needs the victim's weights; an external "
                              "policy can be attacked with a black-box one: "
@@ -203,10 +281,10 @@ class Orchestrator:
         self.record = None if cfg.record == "off" else Path(cfg.record or default_record)
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
         self.nodes: list[NodeProcess] = []
-        self.interrupted = False
+        self.stop_signal: int | None = None
 
     def _request_stop(self, signum, frame) -> None:
-        self.interrupted = True
+        self.stop_signal = self.stop_signal or signum
 
     # ----------------------------------------------------------------------------------- set-up
     def start_nodes(self, env: dict) -> None:
@@ -231,13 +309,11 @@ class Orchestrator:
 
     def check_nodes(self) -> None:
         """Raise if the user interrupted the run or a node died; every wait loop calls this."""
-        if self.interrupted:
-            raise KeyboardInterrupt
+        if self.stop_signal is not None:
+            raise RunInterrupted(self.stop_signal)
         for node in self.nodes:
-            code = node.exited()
-            if code is not None:
-                raise GraphError(f"node '{node.name}' exited with code {code}: {node.last_error()} "
-                                 f"(full log: {node.log_path})")
+            if node.exited() is not None:
+                raise GraphError(node.death())
 
     def wait_connected(self, ros) -> None:
         """Until every started node has announced that its endpoints are matched (graph/ready), the
@@ -291,9 +367,10 @@ class Orchestrator:
         writer = None
         ros = None
         interrupted, reason = False, ""
-        # Ctrl-C / SIGTERM only set a flag, checked between spins: a KeyboardInterrupt raised inside an
-        # rclpy callback can be swallowed by the executor, and the run would go on.
-        previous = {sig: signal.signal(sig, self._request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+        # A stop signal only sets a flag, checked between spins: a KeyboardInterrupt raised inside an
+        # rclpy callback can be swallowed by the executor, and the run would go on. The handler stays
+        # until the log is closed, so a second Ctrl-C cannot cut the shutdown short.
+        previous = {sig: signal.signal(sig, self._request_stop) for sig in STOP_SIGNALS}
         try:
             # first: a record path that exists or cannot be written stops the run before any node starts
             writer = RunLogWriter(self.record, self.run_metadata(), camera=self.cfg.render) if self.record else None
@@ -305,17 +382,11 @@ class Orchestrator:
             for episode in range(self.cfg.episodes):
                 self.run_episode(ros, recorder, episode)
             seconds = time.monotonic() - started
-        except KeyboardInterrupt:
-            interrupted, reason = True, "interrupted by the user (SIGINT/SIGTERM)"
-            raise
-        except GraphError as err:
-            interrupted, reason = True, str(err)
+        except BaseException as err:  # any abnormal end: a signal, a dead or stuck node, a bug of ours
+            interrupted, reason = True, end_reason(err)
             raise
         finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-            for node in self.nodes:
-                node.stop()
+            stop_nodes(self.nodes)
             if ros is not None:
                 ros.close()
             if writer is not None:
@@ -328,6 +399,8 @@ class Orchestrator:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
         return self.summary(recorder, seconds, domain)
 
     def run_episode(self, ros, recorder: "StepRecorder", episode: int) -> None:
@@ -357,6 +430,15 @@ class Orchestrator:
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
         }
+
+
+def end_reason(err: BaseException) -> str:
+    """The ``reason`` an abnormal end leaves in the log's end record."""
+    if isinstance(err, (GraphError, RunInterrupted)):
+        return str(err)
+    if isinstance(err, KeyboardInterrupt):  # an in-process caller's own Ctrl-C
+        return "interrupted by KeyboardInterrupt"
+    return f"the orchestrator failed: {type(err).__name__}: {err}"
 
 
 def _node_path(name: str) -> str:
@@ -642,6 +724,9 @@ class GraphClient:
             raise GraphError(f"the simulator refused to reset: {result.reason}")
 
     def close(self) -> None:
+        from rclpy.utilities import get_default_context
+
         self.executor.shutdown()
         self.node.destroy_node()
         self._rclpy.try_shutdown()
+        get_default_context().destroy()  # the DDS participant leaves now, not at the process's teardown

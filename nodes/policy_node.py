@@ -47,7 +47,7 @@ class PolicyNode(Node):
 
 
 def main(args=None):
-    raise SystemExit(main_for(PolicyNode, args))
+    main_for(PolicyNode, args)
 
 
 if __name__ == "__main__":

@@ -72,14 +72,11 @@ class SimulatorNode(Node):
     def _camera(self, size: str):
         from sensor_msgs.msg import CompressedImage
 
-        from aril_ros.render import FrameRenderer, RenderError
+        from aril_ros.render import FrameRenderer, RenderError, frame_size
 
         try:
-            width, height = (int(v) for v in size.lower().split("x"))
-            camera = FrameRenderer(self.sim, width, height)
-        except ValueError:
-            raise FatalNodeError(f"render_size must be <width>x<height>, got {size!r}") from None
-        except RenderError as err:
+            camera = FrameRenderer(self.sim, *frame_size(size))
+        except (ValueError, RenderError) as err:  # a bad size, one beyond MuJoCo's framebuffer, or no GL
             raise FatalNodeError(str(err)) from None
         self.camera_pub = self.create_publisher(CompressedImage, P.CAMERA, STEP_QOS)
         self._image_type = CompressedImage
@@ -168,7 +165,7 @@ class SimulatorNode(Node):
 
 
 def main(args=None):
-    raise SystemExit(main_for(SimulatorNode, args))
+    main_for(SimulatorNode, args)
 
 
 if __name__ == "__main__":

@@ -187,5 +187,5 @@ def test_the_performance_step_finds_benchmarks_by_entry_point_not_by_path(monkey
     ran = []
     monkeypatch.setattr(perf.plugins, "names", lambda group: ["adversary", "engine", "graph", "extra"])
     monkeypatch.setattr(perf, "run_benchmark", lambda name, args: ran.append((name, args)) or {})
-    assert list(perf.run_benchmarks(1000, quiet, env="Swimmer-v5")) == ["engine", "graph", "adversary", "extra"]
+    assert list(perf.run_benchmarks(1000, quiet, env="Swimmer-v5")) == ["engine", "graph", "adversary", "soak", "extra"]
     assert ran[0] == ("engine", ["env:=Swimmer-v5", "steps:=1000"]) and ran[-1] == ("extra", [])
