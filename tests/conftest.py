@@ -6,8 +6,9 @@ import os
 import pytest
 import torch
 
-# A test process never joins another run's ROS graph (the graph tests start real nodes).
-os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+# A test process never joins another run's ROS graph (the graph tests start real nodes); an id of the
+# upper safe range (215-232), whose DDS ports keep clear of Linux's ephemeral ones.
+os.environ.setdefault("ROS_DOMAIN_ID", str(215 + os.getpid() % 18))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from aril_ros.policy import MLPPolicy, meta_for_env  # noqa: E402
