@@ -53,18 +53,27 @@ def ros_env(domain: int) -> dict:
     return {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
 
-def processes_in_domain(domain: int, besides=()) -> list[int]:
-    """PIDs (but this one and ``besides``) whose environment puts them in ``domain``: none after a run."""
+ROS_PROCESS_MARKS = (b"aril_ros_nodes", b"run_graph", b"rclpy")
+"""What a ROS process's command line shows: one of our nodes or orchestrator, or a test's own ``python -c``
+node (its code imports rclpy). A helper this test process started during an in-process run (multiprocessing's
+resource tracker) inherits the run's ROS_DOMAIN_ID too, but is no node and lives as long as this process."""
+
+
+def processes_in_domain(domain: int, besides=()) -> list[str]:
+    """ROS processes (but this one and ``besides``) whose environment puts them in ``domain``, as
+    ``"<pid>: <command line>"``: none after a run."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) in (os.getpid(), *besides):
             continue
         try:
             environ = (entry / "environ").read_bytes().split(b"\0")
+            cmdline = (entry / "cmdline").read_bytes()
         except OSError:
             continue
-        if f"ROS_DOMAIN_ID={domain}".encode() in environ:
-            found.append(int(entry.name))
+        if f"ROS_DOMAIN_ID={domain}".encode() in environ and any(mark in cmdline for mark in ROS_PROCESS_MARKS):
+            command = cmdline.replace(b"\0", b" ").decode(errors="replace")
+            found.append(f"{entry.name}: {command[:200]}")
     return found
 
 

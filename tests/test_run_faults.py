@@ -107,9 +107,10 @@ def test_a_stop_signal_exits_with_its_code_and_closes_the_log_as_interrupted(sig
 
 
 def pid_of_node(domain: int, name: str) -> int:
-    for pid in processes_in_domain(domain):
-        if f"aril_ros_nodes.{name}_node" in Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace"):
-            return pid
+    for process in processes_in_domain(domain):
+        pid, cmdline = process.split(": ", 1)
+        if f"aril_ros_nodes.{name}_node" in cmdline:
+            return int(pid)
     raise AssertionError(f"no {name} node in domain {domain}")
 
 
