@@ -23,6 +23,7 @@ EXPERT_ACTION = "expert/action"  # sensor_msgs/JointState: effort = the expert's
 CLOCK = "/clock"  # rosgraph_msgs/Clock: sim time, one message per step
 CAMERA = "sim/camera/image/compressed"  # sensor_msgs/CompressedImage (JPEG), every render_every steps; opt-in
 READY = "graph/ready"  # std_msgs/String, transient local: a node's name once all its endpoints are matched
+PROBE_CLIENT = "attacker_probes"  # the node name of the attacker's probe client: the run admits it (trust model)
 RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
 SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
 

@@ -48,7 +48,6 @@ from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_
 
 NODE_MODULES = {name: f"aril_ros_nodes.{name}_node" for name in ("simulator", "attacker", "policy", "expert")}
 """The module each node runs as (``python -m``, from the installed package: no checkout on the path)."""
-PROBE_CLIENT = "attacker_probes"  # the node of the attacker's probe client (aril_ros_nodes.attacker_node)
 
 
 @dataclass
@@ -337,7 +336,7 @@ class Orchestrator:
 
     def own_nodes(self) -> set[str]:
         """The names of the nodes this run started, its own and (with a query attack) the attacker's probe client."""
-        return {node.name for node in self.nodes} | {GraphClient.NAME} | ({PROBE_CLIENT} if self.probes else set())
+        return {node.name for node in self.nodes} | {GraphClient.NAME} | ({P.PROBE_CLIENT} if self.probes else set())
 
     def run_metadata(self) -> dict:
         cfg = self.cfg
