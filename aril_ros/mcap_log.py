@@ -11,7 +11,8 @@ Foxglove:
   its step, written right after its step), which Foxglove shows as video beside the state plots;
 - log time = publish time = the step's sim time, so log times are monotonic and a player paces by
   sim time; each step's messages are written together, in ``STEP_TOPICS`` order, once the step is
-  complete, and the file is flushed after every step (a killed run loses no complete step);
+  complete, as one chunk (:class:`aril_ros.mcap_stream.ChunkStreamWriter`), and the file is flushed after
+  every step (a killed run loses no complete step);
 - the probes of a query-based attack (observations put to the policy only to read its answer, tagged
   ``"<episode>/<step>/probe/<k>"``) on channels of their own, ``/probe/observation`` and
   ``/probe/action`` (:data:`aril_ros.protocol.PROBE_CHANNELS`), byte for byte as published on
@@ -41,10 +42,10 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.writer import CompressionType, Writer
 
 from . import protocol as P
 from .dataset import DaggerDataset
+from .mcap_stream import MAGIC, ChunkStreamWriter
 from .protocol import ProbeTag, StepTag
 from .registry import MODES
 from .step import StepArrays, missing_topics, sensory_observation
@@ -131,8 +132,7 @@ class RunLogWriter:
 
     def _start(self, run_metadata: dict, camera: bool) -> None:
         with self._writing():
-            self._writer = Writer(self._file, compression=CompressionType.ZSTD)
-            self._writer.start(profile="ros2", library="aril_ros")
+            self._writer = ChunkStreamWriter(self._file, profile="ros2", library="aril_ros")
             self._schema_ids = {name: self._writer.register_schema(name, "ros2msg", text.encode())
                                 for name, text in SCHEMAS.items()}
             self._channels = {}
@@ -427,8 +427,6 @@ def _open_checked(path: Path):
         if f.read(8) != MAGIC:
             raise RunLogError(f"{path}: not an MCAP file")
 
-
-MAGIC = b"\x89MCAP0\r\n"
 
 
 def read_run(path: str | Path, allow_interrupted: bool = False) -> RunLog:
