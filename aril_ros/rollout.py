@@ -90,7 +90,8 @@ class SimBatch:
 
 
 class RolloutEngine:
-    """Runs ``policy ∘ attack`` on ``n_envs`` simulators in lockstep, labelling with ``expert``."""
+    """Runs ``policy ∘ attack`` on ``n_envs`` simulators in lockstep, labelling with ``expert``; their physics
+    on ``physics_threads`` threads (default: one per core), which changes no result."""
 
     def __init__(
         self,
@@ -101,6 +102,7 @@ class RolloutEngine:
         mode: str = "clean",
         n_envs: int = 8,
         horizon: int = HORIZON,
+        physics_threads: int | None = None,
     ):
         check_name("mode", mode, MODES)
         self.layout = layout_of(env_id)
@@ -113,7 +115,7 @@ class RolloutEngine:
             raise ValueError(f"mode clean runs no attack, got attack {attack.name!r}")
         self.policy, self.expert, self.mode, self.horizon = policy, expert, mode, horizon
         self.attack = attack if attack is not None else NoAttack(self.layout, 0.0)
-        self.sims = SimBatch(env_id, n_envs, horizon)
+        self.sims = SimBatch(env_id, n_envs, horizon, physics_threads)
 
     def close(self) -> None:
         self.sims.close()
