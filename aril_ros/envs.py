@@ -25,7 +25,7 @@ from __future__ import annotations
 import functools
 import os
 import warnings
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -347,7 +347,8 @@ class Frame:
 class PhysicsPool:
     """Runs ``work(lo, hi)`` over ``range(n)`` split into one contiguous group of rows per thread, the
     first group on the calling thread. The groups' MuJoCo calls run in parallel (the bindings release
-    the GIL inside them); the Python between them takes turns."""
+    the GIL inside them); the Python between them takes turns. :meth:`submit` hands it one more job
+    (the expert's labels) to run beside the caller's."""
 
     def __init__(self, threads: int):
         self.threads = max(1, int(threads))
@@ -364,6 +365,15 @@ class PhysicsPool:
         work(bounds[0], bounds[1])
         for future in futures:
             future.result()
+
+    def submit(self, fn, *args) -> Future:
+        """``fn(*args)`` on a pool thread, beside what the caller does next (torch, like MuJoCo, runs
+        without the GIL); on the calling thread at once when the pool has no other."""
+        if self._executor is not None:
+            return self._executor.submit(fn, *args)
+        done = Future()
+        done.set_result(fn(*args))
+        return done
 
     def close(self) -> None:
         if self._executor is not None:
