@@ -221,6 +221,7 @@ def test_batched_step_and_perturbation_do_not_depend_on_the_batch(env_id):
         obs = alone.reset(i)
         for t in range(6):
             seen = alone.perturb(delta[t, i])
+            assert seen.tobytes() == alone.gym_env._get_obs().tobytes()  # gymnasium's observation of the moved state
             obs, reward, terminated, truncated = alone.step(actions[t, i])
             got = runs[t]
             assert got[0][i].tobytes() == seen.tobytes() and got[1][i].tobytes() == obs.tobytes()
