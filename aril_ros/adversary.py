@@ -251,8 +251,7 @@ class Collector:
         """The victim's action on ``states`` unperturbed (when the critic or the inputs need it) and the
         expert's: one query of each per state."""
         needed = self.cfg.baseline or self.net.takes_actions
-        labels = self.sims.pool.submit(self.expert.act, states)  # beside the victim's query, on a pool thread
-        return (self.victim.act(states) if needed else None), labels.result()
+        return (self.victim.act(states) if needed else None), self.expert.act(states)
 
     def unperturbed_loss(self, clean: np.ndarray | None, label: np.ndarray) -> np.ndarray:
         """The disagreement the victim would have without the attack: the exact part of the value."""
