@@ -14,8 +14,9 @@ Stepping: for the gymnasium v5 classes in :data:`BATCHED_RULES` (HalfCheetah, An
 Walker2d) a step is gymnasium's ``do_simulation`` (``ctrl``, ``mj_step(nstep=frame_skip)``,
 ``mj_rnePostConstraint``) called on the env's own ``MjData``, then gymnasium's observation, reward and
 termination written over a batch of rows in numpy (:class:`ForwardRules` and its subclasses).
-:func:`step_sims` runs the physics of many simulators on a :class:`PhysicsPool`, one contiguous group
-of them per core: MuJoCo's bindings release the GIL inside ``mj_step``, so the groups run in parallel.
+:func:`step_sims` runs the physics of many simulators on a :class:`PhysicsPool`, a thread per core
+taking simulators one at a time: MuJoCo's bindings release the GIL inside ``mj_step``, so they run in
+parallel.
 A single :class:`MujocoSim` (the ROS simulator node's) steps through the same function, so the graph
 and the engine compute the same bits. Any other id is stepped through gymnasium's own ``step``, one
 simulator at a time (:attr:`MujocoSim.batched` says why). Resets are always gymnasium's.
@@ -345,10 +346,12 @@ class Frame:
 
 
 class PhysicsPool:
-    """Runs ``work(lo, hi)`` over ``range(n)`` split into one contiguous group of rows per thread, the
-    first group on the calling thread. The groups' MuJoCo calls run in parallel (the bindings release
-    the GIL inside them); the Python between them takes turns. :meth:`submit` hands it one more job
-    (the expert's labels) to run beside the caller's."""
+    """Runs ``work(i)`` for every row ``i`` of ``range(n)`` on ``threads`` threads, the calling one
+    included: each takes the next row not yet taken until none is left. The rows' MuJoCo calls run in
+    parallel (the bindings release the GIL inside them); the Python between them takes turns. Rows are
+    taken, not dealt in fixed groups, so a pool thread the OS runs late (a busy machine) costs at most
+    the row it holds: the caller takes the rest, and a helper that has not started is cancelled.
+    :meth:`submit` hands it one more job (the expert's labels) to run beside the caller's."""
 
     def __init__(self, threads: int):
         self.threads = max(1, int(threads))
@@ -356,15 +359,17 @@ class PhysicsPool:
                           if self.threads > 1 else None)
 
     def run(self, work, n: int) -> None:
-        groups = min(self.threads, n)
-        if groups <= 1:
-            work(0, n)
-            return
-        bounds = [n * g // groups for g in range(groups + 1)]
-        futures = [self._executor.submit(work, lo, hi) for lo, hi in zip(bounds[1:-1], bounds[2:])]
-        work(bounds[0], bounds[1])
-        for future in futures:
-            future.result()
+        rows = iter(range(n))  # shared: next() on it is atomic under the GIL
+
+        def take_rows() -> None:
+            for i in rows:
+                work(i)
+
+        helpers = [self._executor.submit(take_rows) for _ in range(min(self.threads, n) - 1)]
+        take_rows()
+        for helper in helpers:
+            if not helper.cancel():
+                helper.result()
 
     def submit(self, fn, *args) -> Future:
         """``fn(*args)`` on a pool thread, beside what the caller does next (torch, like MuJoCo, runs
@@ -405,16 +410,15 @@ def step_sims(sims: list[MujocoSim], action: np.ndarray, pool: PhysicsPool = SER
     else:
         frame, x_before, x_after = Frame.empty(sims), np.empty(len(sims)), np.empty(len(sims))
 
-        def simulate(lo: int, hi: int) -> None:  # gymnasium's do_simulation on each simulator's own MjData
-            for i in range(lo, hi):
-                sim = sims[i]
-                x_before[i] = rules.progress(sim)
-                sim.ctrl[:] = action[i]
-                mujoco.mj_step(sim.model, sim.data, nstep=sim.frame_skip)
-                # force-related quantities (cfrc_ext) are not computed by mj_step without force sensors
-                mujoco.mj_rnePostConstraint(sim.model, sim.data)
-                x_after[i] = rules.progress(sim)
-                frame.read(i, sim)
+        def simulate(i: int) -> None:  # gymnasium's do_simulation on the simulator's own MjData
+            sim = sims[i]
+            x_before[i] = rules.progress(sim)
+            sim.ctrl[:] = action[i]
+            mujoco.mj_step(sim.model, sim.data, nstep=sim.frame_skip)
+            # force-related quantities (cfrc_ext) are not computed by mj_step without force sensors
+            mujoco.mj_rnePostConstraint(sim.model, sim.data)
+            x_after[i] = rules.progress(sim)
+            frame.read(i, sim)
 
         pool.run(simulate, len(sims))
         obs = rules.observe(frame)
@@ -452,11 +456,10 @@ def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = S
     real zero-order state moved by the one rule the graph's attacker applies too
     (:func:`aril_ros.step.perturb_qpos`), then ``mj_forward``. Returns the new observations."""
 
-    def move(lo: int, hi: int) -> None:
-        for i in range(lo, hi):
-            sim = sims[i]
-            perturb_qpos(sim.layout, sim.qpos, delta[i])
-            mujoco.mj_forward(sim.model, sim.data)
+    def move(i: int) -> None:
+        sim = sims[i]
+        perturb_qpos(sim.layout, sim.qpos, delta[i])
+        mujoco.mj_forward(sim.model, sim.data)
 
     pool.run(move, len(sims))
     return observe_sims(sims)
