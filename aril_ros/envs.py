@@ -26,7 +26,7 @@ from __future__ import annotations
 import functools
 import os
 import warnings
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -350,8 +350,7 @@ class PhysicsPool:
     included: each takes the next row not yet taken until none is left. The rows' MuJoCo calls run in
     parallel (the bindings release the GIL inside them); the Python between them takes turns. Rows are
     taken, not dealt in fixed groups, so a pool thread the OS runs late (a busy machine) costs at most
-    the row it holds: the caller takes the rest, and a helper that has not started is cancelled.
-    :meth:`submit` hands it one more job (the expert's labels) to run beside the caller's."""
+    the row it holds: the caller takes the rest, and a helper that has not started is cancelled."""
 
     def __init__(self, threads: int):
         self.threads = max(1, int(threads))
@@ -370,15 +369,6 @@ class PhysicsPool:
         for helper in helpers:
             if not helper.cancel():
                 helper.result()
-
-    def submit(self, fn, *args) -> Future:
-        """``fn(*args)`` on a pool thread, beside what the caller does next (torch, like MuJoCo, runs
-        without the GIL); on the calling thread at once when the pool has no other."""
-        if self._executor is not None:
-            return self._executor.submit(fn, *args)
-        done = Future()
-        done.set_result(fn(*args))
-        return done
 
     def close(self) -> None:
         if self._executor is not None:

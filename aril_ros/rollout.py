@@ -132,12 +132,10 @@ class RolloutEngine:
         running = np.arange(len(episode_ids))
         for t in range(self.horizon):
             true_obs = obs[running]
-            # the expert labels the true state on a pool thread while the attack and the policy run here
-            labels = self.sims.pool.submit(self.expert.act, true_obs)
             delta = self.attack.perturb(true_obs, [rngs[k] for k in running])
             seen = self.sims.seen(self.mode, true_obs, delta, running)
             action = self.policy.act(seen)
-            expert_action = labels.result()
+            expert_action = self.expert.act(true_obs)
             obs[running], reward, terminated, truncated = self.sims.step(action, running)
             done = terminated | truncated
             yield StepBatch(true_obs=true_obs, obs=seen, delta=delta, action=action, expert_action=expert_action,
