@@ -235,4 +235,4 @@ def test_an_env_without_batched_rules_is_stepped_by_gymnasium():
     assert sim.rules is None and "InvertedPendulumEnv has no batched rules" in sim.batched
     sim.reset(seed=0)
     obs, reward, terminated, truncated = sim.step(np.array([0.1]))
-    assert obs.shape == (sim.layout.obs_dim,) and reward == 1.0 and not truncated
+    assert obs.shape == (sim.layout.obs_dim,) and reward == 1.0 and not terminated and not truncated
