@@ -123,7 +123,8 @@ def train_against(cfg: AdversaryConfig, victim, log) -> Path:
     made_by = stamp("aril train-adversary", cfg)
     sims, resets = SimBatch(cfg.env, cfg.n_envs), EnvSeeds(seeds.adversary_training(cfg.seed))
     net = initial_adversary(cfg, *input_scaling(cfg, sims, victim, expert, resets))
-    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5)
+    # foreach: one kernel per step for all the parameters, the same update as the per-tensor loop
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5, foreach=True)
     gen = torch.Generator().manual_seed(cfg.seed)
     collector = Collector(cfg, sims, resets, net, victim, expert, gen)
     started, steps = time.time(), 0
@@ -294,8 +295,9 @@ class Collector:
             self.obs, env_reward, terminated, truncated = self.sims.step(action, rows)
             self.episode_loss += loss
             self.episode_return += env_reward
-            for i in np.flatnonzero(truncated & ~terminated):  # time limit: bootstrap from the state it stopped in
-                reward[i] += cfg.gamma * self.value_of(self.obs[i:i + 1], scale)[0]
+            stopped = np.flatnonzero(truncated & ~terminated)  # time limit: bootstrap from the state it stopped in
+            if stopped.size:  # all at once: every simulator reaches the horizon at the same step
+                reward[torch.as_tensor(stopped)] += cfg.gamma * self.value_of(self.obs[stopped], scale)
             for i in np.flatnonzero(terminated | truncated):
                 self.discounted[i] = 0.0
                 self.finished_loss.append(self.episode_loss[i])
@@ -350,12 +352,12 @@ def ppo_update(net: AdversaryNet, optimizer, batch: Rollout, advantages: torch.T
     b_adv, b_ret = flat(advantages), flat(remainder_target)
     for _ in range(cfg.epochs):
         for idx in torch.randperm(size, generator=gen).split(cfg.minibatch):
-            dist = net.distribution(b_obs[idx])
-            ratio = (dist.log_prob(b_sample[idx]).sum(-1) - b_logp[idx]).exp()
+            log_prob, entropy = net.log_prob_and_entropy(b_obs[idx], b_sample[idx])
+            ratio = (log_prob - b_logp[idx]).exp()
             adv = (b_adv[idx] - b_adv[idx].mean()) / (b_adv[idx].std() + 1e-8)
             policy_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
             value_loss = ((net.value(b_obs[idx]) - b_ret[idx]) ** 2).mean()
-            entropy = dist.entropy().sum(-1).mean()
+            entropy = entropy.mean()
             loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
             optimizer.zero_grad()
             loss.backward()

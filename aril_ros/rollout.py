@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .attacks import Attack, NoAttack
-from .envs import HORIZON, MujocoSim, layout_of
+from .envs import HORIZON, MujocoSim, PhysicsPool, layout_of, perturb_sims, physics_threads, step_sims
 from .policy import MLPPolicy
 from .registry import MODES, check_name
 from .step import StepArrays, disagreement, episode_rng, episode_seed, sensory_observation
@@ -51,10 +51,15 @@ class Trajectories(StepArrays):
 
 
 class SimBatch:
-    """``n`` simulators of one env stepped side by side; ``rows`` picks the ones a call concerns."""
+    """``n`` simulators of one env stepped side by side; ``rows`` picks the ones a call concerns.
 
-    def __init__(self, env_id: str, n: int, horizon: int = HORIZON):
+    Their physics runs on a :class:`~aril_ros.envs.PhysicsPool` of ``threads`` threads (default: one per
+    core); a row's results do not depend on ``n``, ``threads`` or the other rows.
+    """
+
+    def __init__(self, env_id: str, n: int, horizon: int = HORIZON, threads: int | None = None):
         self.sims = [MujocoSim(env_id, horizon) for _ in range(max(1, int(n)))]
+        self.pool = PhysicsPool(min(len(self.sims), threads or physics_threads()))
 
     def __len__(self) -> int:
         return len(self.sims)
@@ -68,25 +73,25 @@ class SimBatch:
         """What the policy sees, by the mode's rule: ``s + delta``, or (physical) the observation of each
         simulator after its real state has been moved by ``delta``."""
         if mode == "physical":
-            return np.stack([self.sims[k].perturb(d) for k, d in zip(rows, delta)])
+            return perturb_sims(self._rows(rows), delta, self.pool)
         return sensory_observation(true_obs, delta)
 
     def step(self, action: np.ndarray, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Advance the simulators of ``rows`` one control step: observation, reward, terminated, truncated."""
-        obs, reward = [], np.empty(len(action))
-        terminated, truncated = np.empty(len(action), dtype=bool), np.empty(len(action), dtype=bool)
-        for row, k in enumerate(rows):
-            o, reward[row], terminated[row], truncated[row] = self.sims[k].step(action[row])
-            obs.append(o)
-        return np.stack(obs), reward, terminated, truncated
+        return step_sims(self._rows(rows), action, self.pool)
+
+    def _rows(self, rows) -> list[MujocoSim]:
+        return [self.sims[k] for k in rows]
 
     def close(self) -> None:
+        self.pool.close()
         for sim in self.sims:
             sim.close()
 
 
 class RolloutEngine:
-    """Runs ``policy ∘ attack`` on ``n_envs`` simulators in lockstep, labelling with ``expert``."""
+    """Runs ``policy ∘ attack`` on ``n_envs`` simulators in lockstep, labelling with ``expert``; their physics
+    on ``physics_threads`` threads (default: one per core), which changes no result."""
 
     def __init__(
         self,
@@ -97,6 +102,7 @@ class RolloutEngine:
         mode: str = "clean",
         n_envs: int = 8,
         horizon: int = HORIZON,
+        physics_threads: int | None = None,
     ):
         check_name("mode", mode, MODES)
         self.layout = layout_of(env_id)
@@ -109,7 +115,7 @@ class RolloutEngine:
             raise ValueError(f"mode clean runs no attack, got attack {attack.name!r}")
         self.policy, self.expert, self.mode, self.horizon = policy, expert, mode, horizon
         self.attack = attack if attack is not None else NoAttack(self.layout, 0.0)
-        self.sims = SimBatch(env_id, n_envs, horizon)
+        self.sims = SimBatch(env_id, n_envs, horizon, physics_threads)
 
     def close(self) -> None:
         self.sims.close()

@@ -111,3 +111,128 @@ def test_physical_perturbation_moves_exactly_the_observed_qpos_entries():
     np.testing.assert_array_equal(a.get_state(), c.get_state())
     assert len(a.state_names) == a.state_size and a.state_names[0] == "time"
     assert a.state_names[1] == "root[0]:pos"
+
+
+# --- the batched step against gymnasium's own, bit for bit ---
+
+BATCHED_ENVS = ["HalfCheetah-v5", "Ant-v5", "Swimmer-v5", "Hopper-v5", "Walker2d-v5"]
+
+
+def random_states(env_id, n, rng):
+    """Integration states of ``n`` gymnasium resets moved by random noise, some far enough that Hopper,
+    Walker2d and Ant start unhealthy (the terminated branch)."""
+    import mujoco
+
+    from aril_ros.envs import make_gym_env
+
+    env = make_gym_env(env_id)
+    sim = env.unwrapped
+    states = []
+    for i in range(n):
+        env.reset(seed=i)
+        scale = 0.5 if i % 3 == 2 else 0.05
+        sim.data.qpos[:] += rng.uniform(-scale, scale, sim.model.nq)
+        sim.data.qvel[:] += rng.normal(0.0, 20 * scale, sim.model.nv)
+        mujoco.mj_forward(sim.model, sim.data)
+        state = np.empty(mujoco.mj_stateSize(sim.model, mujoco.mjtState.mjSTATE_INTEGRATION))
+        mujoco.mj_getState(sim.model, sim.data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
+        states.append(state)
+    env.close()
+    return np.array(states)
+
+
+def gymnasium_steps(env_id, state, actions, horizon):
+    """gymnasium's ``env.step`` (every wrapper of ``gym.make``) from ``state``: per step the observation,
+    reward, terminated, truncated and the integration state after it."""
+    import warnings
+
+    import mujoco
+
+    from aril_ros.envs import make_gym_env
+
+    env = make_gym_env(env_id, horizon)
+    env.reset(seed=0)
+    model, data = env.unwrapped.model, env.unwrapped.data
+    mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
+    mujoco.mj_forward(model, data)
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the checker's warnings on actions outside the box
+        for a in actions:
+            obs, reward, terminated, truncated, _ = env.step(a)
+            after = np.empty_like(state)
+            mujoco.mj_getState(model, data, after, mujoco.mjtState.mjSTATE_INTEGRATION)
+            out.append((obs, reward, terminated, truncated, after))
+    env.close()
+    return out
+
+
+@pytest.mark.parametrize("env_id", BATCHED_ENVS)
+def test_batched_step_is_gymnasiums_bit_for_bit(env_id):
+    from aril_ros.rollout import SimBatch
+
+    n, steps, horizon = 5, 12, 8  # past the horizon: truncated both ways
+    rng = np.random.default_rng(1)
+    states = random_states(env_id, n, rng)
+    act_dim = layout_of(env_id).act_dim
+    # float32 like gymnasium's action space, float64 like a policy's; beyond the box too (MuJoCo clamps ctrl)
+    actions = rng.uniform(-1.5, 1.5, (steps, n, act_dim))
+    actions = [a.astype(np.float32) if t % 2 else a for t, a in enumerate(actions)]
+    batch = SimBatch(env_id, n, horizon, threads=3)  # uneven groups of rows
+    assert batch.sims[0].rules is not None, batch.sims[0].batched
+    for sim, state in zip(batch.sims, states):
+        sim.set_state(state)
+        sim.elapsed = 0
+    expected = [gymnasium_steps(env_id, states[i], [a[i] for a in actions], horizon) for i in range(n)]
+    terminated_seen = set()
+    for t, a in enumerate(actions):
+        obs, reward, terminated, truncated = batch.step(a, range(n))
+        for i, sim in enumerate(batch.sims):
+            want_obs, want_reward, want_terminated, want_truncated, want_state = expected[i][t]
+            where = f"{env_id} row {i} step {t}"
+            assert obs[i].tobytes() == want_obs.tobytes(), where
+            assert obs[i].dtype == want_obs.dtype and np.float64(reward[i]).tobytes() == np.float64(want_reward).tobytes(), where
+            assert (terminated[i], truncated[i]) == (want_terminated, want_truncated), where
+            assert sim.get_state().tobytes() == want_state.tobytes(), where
+            terminated_seen.add(bool(terminated[i]))
+    if env_id in ("Hopper-v5", "Walker2d-v5", "Ant-v5"):
+        assert terminated_seen == {True, False}
+    batch.close()
+
+
+@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Ant-v5"])
+def test_batched_step_and_perturbation_do_not_depend_on_the_batch(env_id):
+    """32 simulators on the pool step, perturb and observe each row as one simulator alone does."""
+    from aril_ros.rollout import SimBatch
+
+    n, lay = 32, layout_of(env_id)
+    rng = np.random.default_rng(2)
+    actions = rng.uniform(-1, 1, (6, n, lay.act_dim))
+    delta = np.zeros((6, n, lay.obs_dim))
+    delta[..., lay.position] = rng.uniform(-0.05, 0.05, (6, n, lay.n_position))
+    batch, alone = SimBatch(env_id, n, threads=2), MujocoSim(env_id)
+    batch_obs = batch.reset(list(range(n)))
+    runs = []
+    for t in range(6):
+        seen = batch.seen("physical", batch_obs, delta[t], range(n))
+        runs.append((seen, *batch.step(actions[t], range(n))))
+        batch_obs = runs[-1][1]
+    for i in range(n):
+        obs = alone.reset(i)
+        for t in range(6):
+            seen = alone.perturb(delta[t, i])
+            assert seen.tobytes() == alone.gym_env._get_obs().tobytes()  # gymnasium's observation of the moved state
+            obs, reward, terminated, truncated = alone.step(actions[t, i])
+            got = runs[t]
+            assert got[0][i].tobytes() == seen.tobytes() and got[1][i].tobytes() == obs.tobytes()
+            assert (got[2][i], got[3][i], got[4][i]) == (reward, terminated, truncated)
+        assert batch.sims[i].get_state().tobytes() == alone.get_state().tobytes()
+    batch.close()
+
+
+def test_an_env_without_batched_rules_is_stepped_by_gymnasium():
+    sim = MujocoSim("InvertedPendulum-v5")
+    assert sim.rules is None and "InvertedPendulumEnv has no batched rules" in sim.batched
+    sim.reset(seed=0)
+    obs, reward, terminated, truncated = sim.step(np.array([0.1]))
+    assert obs.shape == (sim.layout.obs_dim,) and reward == 1.0 and not terminated and not truncated
