@@ -40,13 +40,13 @@ class GraphBenchConfig:
 
 def graph_steps_per_s(cfg, mode: str, record: bool) -> float:
     """The orchestrator's ``steps_per_s`` for two episodes of ``steps / 2`` (the default policy and expert)."""
-    log = Path(tempfile.gettempdir()) / "aril_bench_graph.mcap"
-    graph = GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
-                        horizon=cfg.steps // 2, record=str(log) if record else "off")
-    try:
-        return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
-    except (ValueError, GraphError) as err:
-        raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
+    with tempfile.TemporaryDirectory(prefix="aril_bench_graph-") as folder:  # the writer takes new files only
+        graph = GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
+                            horizon=cfg.steps // 2, record=str(Path(folder) / "run.mcap") if record else "off")
+        try:
+            return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
+        except (ValueError, GraphError) as err:
+            raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
 
 
 def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
