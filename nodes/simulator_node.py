@@ -42,6 +42,7 @@ class SimulatorNode(Node):
         super().__init__("simulator")
         self.sim = MujocoSim(declared(self, "env", DEFAULT_ENV), declared(self, "horizon", HORIZON))
         self.obs_names = list(self.sim.layout.names)
+        self.state_names = self.sim.state_names  # built from the model on every call: once, not every step
         self.act_dim = self.sim.layout.act_dim
         self.tag: StepTag | None = None  # the step waiting for its action; None between episodes
         self.global_step = 0  # steps completed in this run: the sim clock
@@ -90,7 +91,7 @@ class SimulatorNode(Node):
         (and the physical attacker for sim/physics_state), the recorder alone for /clock."""
         header = self.header()
         self.state_pub.publish(joint_state(header, self.obs_names, self.sim.observe()))
-        self.physics_pub.publish(joint_state(header, self.sim.state_names, self.sim.get_state()))
+        self.physics_pub.publish(joint_state(header, self.state_names, self.sim.get_state()))
         self.clock_pub.publish(Clock(clock=header.stamp))
         if self.camera is not None and self.tag.step % self.render_every == 0:
             self.camera_pub.publish(self._image_type(header=header, format="jpeg", data=self.camera.jpeg()))
