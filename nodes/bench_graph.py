@@ -95,10 +95,10 @@ def main(argv):
               for mode, row in rows.items()}
     columns, ratio_columns = list(rows["clean"]), list(ratios["clean"])
     print(f"{cfg.env}: steps/s ({cfg.steps} graph steps, {cfg.bare_steps} bare-chain steps per cell)")
-    print(f"{'mode':<10}" + "".join(f"{c:>18}" for c in [*columns, *ratio_columns]))
+    print(f"{'mode':<10}" + "".join(f"{c:>18}" for c in columns) + "".join(f"{c:>21}" for c in ratio_columns))
     for mode, row in rows.items():
         print(f"{mode:<10}" + "".join(f"{row[c]:>18.0f}" for c in columns)
-              + "".join(f"{ratios[mode][c]:>18.2f}" for c in ratio_columns))
+              + "".join(f"{ratios[mode][c]:>21.2f}" for c in ratio_columns))
     print(json.dumps({"env": cfg.env, **{m: {**{k: round(v, 1) for k, v in r.items()}, **ratios[m]}
                                          for m, r in rows.items()}}))
 
