@@ -92,6 +92,32 @@ def cdr_header(raw: bytes) -> tuple[int, str]:
     return sec * 1_000_000_000 + nanosec, raw[16 : 16 + length - 1].decode()
 
 
+_JOINT_STATE_ARRAYS = ("position", "velocity", "effort")
+
+
+def cdr_joint_values(raw: bytes, field: str) -> np.ndarray:
+    """The float64 array ``field`` (``position``, ``velocity`` or ``effort``) of a CDR-encoded ``JointState``, read
+    in place: a quarter of the time of deserialising the message (the recorder reads four of every step's)."""
+    def aligned(pos: int, size: int) -> int:  # CDR aligns to the field's size, counted after the 4-byte header
+        return 4 + -(-(pos - 4) // size) * size
+
+    pos = 16 + struct.unpack_from("<I", raw, 12)[0]  # past the stamp and the frame_id
+    pos = aligned(pos, 4)
+    (names,) = struct.unpack_from("<I", raw, pos)
+    pos += 4
+    for _ in range(names):
+        pos = aligned(pos, 4)
+        pos += 4 + struct.unpack_from("<I", raw, pos)[0]
+    for name in _JOINT_STATE_ARRAYS:
+        pos = aligned(pos, 4)
+        (count,) = struct.unpack_from("<I", raw, pos)
+        pos = aligned(pos + 4, 8) if count else pos + 4
+        if name == field:
+            return np.frombuffer(raw, dtype="<f8", count=count, offset=pos).copy()
+        pos += 8 * count
+    raise ValueError(f"JointState has no float64 array {field!r}")
+
+
 def cdr_stamp(raw: bytes) -> int:
     """Stamp in ns of a CDR-encoded ``builtin_interfaces/Time`` first field (``Clock``)."""
     sec, nanosec = struct.unpack_from("<iI", raw, 4)

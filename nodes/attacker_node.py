@@ -104,9 +104,10 @@ class AttackerNode(Node):
             self.try_physical(msg.header.frame_id)
             return
         true_obs, delta = self.perturbation(msg)
-        self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
+        # the policy waits for the observation, the recorder alone for the perturbation
         self.observation_pub.publish(joint_state(msg.header, self.layout.names,
                                                  sensory_observation(true_obs, delta)))
+        self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
 
     def on_physics(self, msg: JointState) -> None:
         self.physics[msg.header.frame_id] = msg

@@ -1,16 +1,17 @@
-"""Graph throughput: steps/s of the ROS 2 graph per mode, with and without recording, beside the
-in-process engine and a bare two-process rclpy ping-pong (the practical limit of one hop).
+"""Graph throughput: steps/s of the ROS 2 graph per mode, with and without recording, as a ratio to the bare
+rclpy chain (:mod:`aril_ros_nodes.bare_chain`: the same four roles, nothing else) measured beside it, and the
+in-process engine.
 
     .venv/bin/python -m aril_ros_nodes.bench_graph env:=HalfCheetah-v5 steps:=2000
 
 The graph figure is ``steps_per_s`` of the orchestrator behind ``run_graph.py`` (episodes only,
-start-up excluded); the engine runs the same policy, expert, attack and episode length with one env
-(``n_envs:=1``, like the graph) and with 32. The last line is the figures as JSON (what ``aril report``
-reads: this module is the ``aril_ros.benchmarks`` entry point ``graph``).
+start-up excluded); the bare chain is measured beside each mode's graph cells, in turn with them (``repeats``),
+so that a load that comes and goes on the machine touches both alike. The engine runs the same policy, expert, attack and
+episode length with one env (``n_envs:=1``, like the graph) and with 32. The last line is the figures as JSON
+(what ``aril report`` reads: this module is the ``aril_ros.benchmarks`` entry point ``graph``).
 """
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -23,26 +24,8 @@ from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
 from aril_ros.rollout import RolloutEngine
+from aril_ros_nodes import bare_chain
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
-
-PONG = r"""
-import rclpy
-from rclpy.executors import ExternalShutdownException
-from rclpy.experimental import EventsExecutor
-from sensor_msgs.msg import JointState
-from aril_ros_nodes.common import STEP_QOS
-rclpy.init()
-node = rclpy.create_node("pong")
-pub = node.create_publisher(JointState, "pong", STEP_QOS)
-node.create_subscription(JointState, "ping", pub.publish, STEP_QOS)
-executor = EventsExecutor()
-executor.add_node(node)
-try:
-    while rclpy.ok():
-        executor.spin_once(timeout_sec=0.2)
-except (KeyboardInterrupt, ExternalShutdownException):
-    pass
-"""
 
 
 @dataclass
@@ -52,18 +35,20 @@ class GraphBenchConfig:
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)")
     eps: float = arg(0.05, "attack budget")
-    seconds: float = arg(5.0, "length of the ping-pong measurement")
+    bare_steps: int = arg(2000, "steps per bare-chain measurement")
+    repeats: int = arg(1, "runs of the bare chain, the graph and the graph with recording per mode, in turn; each "
+                          "cell is the best of them", low=1, high=20)
 
 
 def graph_steps_per_s(cfg, mode: str, record: bool) -> float:
     """The orchestrator's ``steps_per_s`` for two episodes of ``steps / 2`` (the default policy and expert)."""
-    log = Path(tempfile.gettempdir()) / "aril_bench_graph.mcap"
-    graph = GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
-                        horizon=cfg.steps // 2, record=str(log) if record else "off")
-    try:
-        return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
-    except (ValueError, GraphError) as err:
-        raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
+    with tempfile.TemporaryDirectory(prefix="aril_bench_graph-") as folder:  # the writer takes new files only
+        graph = GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
+                            horizon=cfg.steps // 2, record=str(Path(folder) / "run.mcap") if record else "off")
+        try:
+            return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
+        except (ValueError, GraphError) as err:
+            raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
 
 
 def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
@@ -75,42 +60,19 @@ def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
     return int(traj.length.sum()) / (time.perf_counter() - started)
 
 
-def ping_pong_per_s(seconds: float) -> float:
-    import rclpy
-    from rclpy.experimental import EventsExecutor
-    from sensor_msgs.msg import JointState
-
-    from aril_ros_nodes.common import STEP_QOS
-
+def bare_chain_steps_per_s(steps: int) -> float:
     domain, lock = allocate_domain("auto")
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
-    pong = subprocess.Popen([sys.executable, "-c", PONG], env=env)
-    rclpy.init(args=[])
-    node = rclpy.create_node("ping")
-    pub = node.create_publisher(JointState, "ping", STEP_QOS)
-    replies = []
-    sub = node.create_subscription(JointState, "pong", replies.append, STEP_QOS)
-    executor = EventsExecutor()
-    executor.add_node(node)
+    ros_vars = {"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    caller_env = {k: os.environ.get(k) for k in ros_vars}
+    os.environ.update(ros_vars)  # the chain's simulator runs in this process
     try:
-        while pub.get_subscription_count() < 1 or sub.get_publisher_count() < 1:
-            executor.spin_once(timeout_sec=0.05)
-        time.sleep(0.5)
-        msg = JointState(position=[0.0] * 17)
-        count, started = 0, time.perf_counter()
-        while time.perf_counter() - started < seconds:
-            pub.publish(msg)
-            while len(replies) <= count:
-                executor.spin_once(timeout_sec=1.0)
-            count += 1
-        return count / (time.perf_counter() - started)
+        return bare_chain.steps_per_s(steps, dict(os.environ))
     finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        pong.terminate()
-        pong.wait()
+        for key, value in caller_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
         lock.close()
 
 
@@ -124,20 +86,26 @@ def main(argv):
     torch.set_num_threads(1)
     rows = {}
     for mode in MODES:
-        rows[mode] = {
-            "graph": graph_steps_per_s(cfg, mode, record=False),
-            "graph+record": graph_steps_per_s(cfg, mode, record=True),
-            "engine n_envs=1": engine_steps_per_s(cfg, mode, 1),
-            "engine n_envs=32": engine_steps_per_s(cfg, mode, 32),
-        }
-    ping = ping_pong_per_s(cfg.seconds)
-    columns = list(rows["clean"])
-    print(f"{cfg.env}: steps/s ({cfg.steps} graph steps per cell); rclpy ping-pong {ping:.0f} round trips/s")
-    print(f"{'mode':<10}" + "".join(f"{c:>18}" for c in columns) + f"{'graph/ping-pong':>17}")
+        # the three compared cells take turns, best of `repeats` each: a load that comes and goes on a shared
+        # machine slows one run of a cell, seldom all of them
+        compared = {"bare chain": lambda: bare_chain_steps_per_s(cfg.bare_steps),
+                    "graph": lambda: graph_steps_per_s(cfg, mode, record=False),
+                    "graph+record": lambda: graph_steps_per_s(cfg, mode, record=True)}
+        runs = [{cell: measure() for cell, measure in compared.items()} for _ in range(cfg.repeats)]
+        rows[mode] = {**{cell: max(run[cell] for run in runs) for cell in compared},
+                      "engine n_envs=1": engine_steps_per_s(cfg, mode, 1),
+                      "engine n_envs=32": engine_steps_per_s(cfg, mode, 32)}
+    ratios = {mode: {f"{cell} / bare": round(row[cell] / row["bare chain"], 2) for cell in ("graph", "graph+record")}
+              for mode, row in rows.items()}
+    columns, ratio_columns = list(rows["clean"]), list(ratios["clean"])
+    print(f"{cfg.env}: steps/s ({cfg.steps} graph steps, {cfg.bare_steps} bare-chain steps per run, best of "
+          f"{cfg.repeats})")
+    print(f"{'mode':<10}" + "".join(f"{c:>18}" for c in columns) + "".join(f"{c:>21}" for c in ratio_columns))
     for mode, row in rows.items():
-        print(f"{mode:<10}" + "".join(f"{row[c]:>18.0f}" for c in columns) + f"{row['graph'] / ping:>17.2f}")
-    print(json.dumps({"env": cfg.env, "ping_pong_round_trips_per_s": round(ping, 1),
-                      **{m: {k: round(v, 1) for k, v in r.items()} for m, r in rows.items()}}))
+        print(f"{mode:<10}" + "".join(f"{row[c]:>18.0f}" for c in columns)
+              + "".join(f"{ratios[mode][c]:>21.2f}" for c in ratio_columns))
+    print(json.dumps({"env": cfg.env, **{m: {**{k: round(v, 1) for k, v in r.items()}, **ratios[m]}
+                                         for m, r in rows.items()}}))
 
 
 if __name__ == "__main__":

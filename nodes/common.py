@@ -1,6 +1,7 @@
 """rclpy plumbing shared by the nodes: QoS, JointState messages, the spin loop, fatal errors."""
 from __future__ import annotations
 
+import array
 import os
 import sys
 import time
@@ -95,6 +96,12 @@ def endpoint_text(info) -> str:
     return f"node '{info.node_namespace.rstrip('/')}/{name}' (GID {bytes(info.endpoint_gid).hex('.')})"
 
 
+GRAPH_POLL = 0.05
+"""Seconds between two looks at a service's endpoints in the graph by its guard: listing them costs a graph query
+per call, too much for every request of a step. In between, the service's client and server counts stand in (a
+new client or server raises them)."""
+
+
 class PublisherGuard:
     """Who may publish on one topic, or call (or serve) one service, of a run.
 
@@ -103,8 +110,9 @@ class PublisherGuard:
     matched later is an intruder. Its matched event is queued before any message of it (DDS matches a writer
     before it accepts its data) and marks the topic as intruded for good, even if the intruder leaves at once;
     :meth:`check`, called before a message or a request is used, raises :class:`IntruderError` once the topic is
-    intruded or more publishers are matched than were admitted (for a service: once the graph shows a client or
-    server that was not admitted). The error names the intruder's node and GID.
+    intruded or more publishers are matched than were admitted (for a service: once it has more clients or servers
+    than were admitted, or, looked at every :data:`GRAPH_POLL` seconds, the graph shows one that was not). The error
+    names the intruder's node and GID.
 
     For a service the publishers are the DDS writers of its request topic (its clients) and of its reply topic
     (its servers): ``rq<service>Request`` and ``rr<service>Reply``, the mangling of every DDS rmw.
@@ -112,15 +120,18 @@ class PublisherGuard:
 
     def __init__(self, node: Node, name: str, service: bool = False):
         self.node = node
+        self.service = None  # a service's resolved name
         if service:
             resolved = node.resolve_service_name(name)
             self.what = f"service {resolved}"
+            self.service = resolved
             self.graph_names = ((f"rq{resolved}Request", True), (f"rr{resolved}Reply", True))
         else:
             resolved = node.resolve_topic_name(name)
             self.what = f"topic {resolved}"
             self.graph_names = ((resolved, False),)
         self.subscription = None  # a guarded subscription's matched count stands in for the graph
+        self.next_graph_look = 0.0  # a service's: when check() next lists its endpoints
         self.admitted: set[bytes] | None = None  # GIDs, once admitted
         # publishers ever matched (DDS's total count): before admit() (a publisher may have come and gone, like a
         # probe client the attacker closes), then those admitted; more later is an intruder, even one gone again
@@ -146,13 +157,19 @@ class PublisherGuard:
         deadline = time.monotonic() + wait
         while True:
             infos = self.publishers(wait=wait)
-            if (self.subscription is None or self.subscription.get_publisher_count() == len(infos)
-                    or time.monotonic() >= deadline):
+            if self.matched_count() == len(infos) or time.monotonic() >= deadline:
                 break
             time.sleep(0.05)
         self.admitted = {bytes(info.endpoint_gid) for info in infos}
         self.matched_total = max(self.matched_total, len(self.admitted))
         return infos
+
+    def matched_count(self) -> int:
+        """What stands in for the graph between two looks at it: the publishers matched with the guarded
+        subscription, or a service's clients and servers (one request writer, one reply writer each)."""
+        if self.service is None:
+            return self.subscription.get_publisher_count()
+        return self.node.count_clients(self.service) + self.node.count_services(self.service)
 
     def on_matched(self, info) -> None:
         # marked, not raised: an exception in an event callback is also logged by the executor, with its trace
@@ -165,9 +182,9 @@ class PublisherGuard:
         """Before a message or a request is used: refuse it if a publisher not admitted is (or was) matched."""
         if self.admitted is None:
             return
-        if self.subscription is not None:
-            self.intruded |= self.subscription.get_publisher_count() > len(self.admitted)
-        else:
+        self.intruded |= self.matched_count() > len(self.admitted)
+        if self.service is not None and time.monotonic() >= self.next_graph_look:  # one that replaced an admitted one
+            self.next_graph_look = time.monotonic() + GRAPH_POLL
             self.intruded |= any(bytes(info.endpoint_gid) not in self.admitted for info in self.publishers())
         if self.intruded:
             self.refuse()
@@ -194,14 +211,20 @@ def guarded_subscription(node: Node, msg_type, topic: str, callback, qos, raw: b
     return guard
 
 
+def float64_array(values) -> array.array:
+    """Values for a float64 sequence field of a message: an ``array('d')`` is taken as it is and serialised as one
+    block, where a list is checked and converted value by value (twice the cost of a whole JointState's publish)."""
+    return array.array("d", np.ascontiguousarray(values, dtype=np.float64).tobytes())
+
+
 def joint_state(header, names, position=None, effort=None) -> JointState:
     msg = JointState()
     msg.header = header
     msg.name = list(names)
     if position is not None:
-        msg.position = np.asarray(position, dtype=np.float64).tolist()
+        msg.position = float64_array(position)
     if effort is not None:
-        msg.effort = np.asarray(effort, dtype=np.float64).tolist()
+        msg.effort = float64_array(effort)
     return msg
 
 
@@ -228,7 +251,7 @@ def param_msg(name: str, value) -> ParameterMsg:
         v.type, v.string_value = ParameterType.PARAMETER_STRING, value
     else:
         v.type = ParameterType.PARAMETER_DOUBLE_ARRAY
-        v.double_array_value = np.asarray(value, dtype=np.float64).tolist()
+        v.double_array_value = float64_array(value)
     return ParameterMsg(name=name, value=v)
 
 

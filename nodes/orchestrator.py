@@ -37,7 +37,7 @@ from aril_ros.adversary_net import load_adversary
 from aril_ros.args import ArgumentError, arg, check_ranges
 from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
-from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_stamp
+from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_joint_values, cdr_stamp
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.provenance import git_revision
@@ -104,6 +104,9 @@ class RunInterrupted(KeyboardInterrupt):
         self.exit_code = 128 + signum
         super().__init__(f"interrupted by {self.signal_name}")
 
+
+NODE_POLL = 0.05
+"""Seconds between two looks at whether a node process has died."""
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop a run in order (nodes stopped, log closed as interrupted)."""
@@ -281,6 +284,7 @@ class Orchestrator:
         self.log_dir = Path(tempfile.mkdtemp(prefix=f"aril_ros-{stamp}-"))
         self.nodes: list[NodeProcess] = []
         self.stop_signal: int | None = None
+        self.next_node_look = 0.0  # when check_nodes() next looks at the node processes
 
     def _request_stop(self, signum, frame) -> None:
         self.stop_signal = self.stop_signal or signum
@@ -307,9 +311,13 @@ class Orchestrator:
         self.nodes = [NodeProcess(name, params, self.log_dir, node_env[name]) for name, params in specs.items()]
 
     def check_nodes(self) -> None:
-        """Raise if the user interrupted the run or a node died; every wait loop calls this."""
+        """Raise if the user interrupted the run or a node died (looked at every ``NODE_POLL`` seconds: every wait
+        loop calls this, after each message)."""
         if self.stop_signal is not None:
             raise RunInterrupted(self.stop_signal)
+        if time.monotonic() < self.next_node_look:
+            return
+        self.next_node_look = time.monotonic() + NODE_POLL
         for node in self.nodes:
             if node.exited() is not None:
                 raise GraphError(node.death())
@@ -550,9 +558,6 @@ class StepRecorder:
         return not missing_topics(self.arrived(tag)) and not self.half_heard(tag)
 
     def flush(self) -> None:
-        from rclpy.serialization import deserialize_message
-        from sensor_msgs.msg import JointState
-
         while self.order and self.complete(self.order[0]):
             tag = self.order.pop(0)
             msgs = self.pending.pop(tag)
@@ -568,10 +573,10 @@ class StepRecorder:
             self.last_written = tag
             if tag in self.frames:
                 self._write_frame(*self.frames.pop(tag))
-            reward, terminated, truncated = deserialize_message(msgs[P.REWARD], JointState).position
-            action = np.array(deserialize_message(msgs[P.ACTION], JointState).effort)
-            expert = np.array(deserialize_message(msgs[P.EXPERT_ACTION], JointState).effort)
-            delta = np.array(deserialize_message(msgs[P.PERTURBATION], JointState).position)
+            reward, terminated, truncated = cdr_joint_values(msgs[P.REWARD], "position")
+            action = cdr_joint_values(msgs[P.ACTION], "effort")
+            expert = cdr_joint_values(msgs[P.EXPERT_ACTION], "effort")
+            delta = cdr_joint_values(msgs[P.PERTURBATION], "position")
             self.current.add(reward, action, expert, delta, done=bool(terminated or truncated))
             self.steps_written += 1
             if self.current.done:
@@ -646,16 +651,22 @@ class GraphClient:
         self._request_type = SetParametersAtomically.Request
         self.executor = EventsExecutor()
         self.executor.add_node(self.node)
+        self.next_look = 0.0  # when spin() next checks every guard
 
     def spin(self, timeout: float) -> None:
-        from aril_ros_nodes.common import IntruderError
+        """Handle one event (a message, a matched event, an answer), or wait ``timeout`` seconds for one; every
+        :data:`~aril_ros_nodes.common.GRAPH_POLL` seconds, look for an intruder that has not sent yet (a message is
+        checked as it arrives: looking after each of the 8 of a step would double the orchestrator's work)."""
+        from aril_ros_nodes.common import GRAPH_POLL, IntruderError
 
         self.executor.spin_once(timeout_sec=timeout)
-        try:
-            for guard in [*self.guards.values(), *self.service_guards]:  # an intruder that has not sent yet
-                guard.check()
-        except IntruderError as err:
-            self.fault = self.fault or GraphError(str(err))
+        if time.monotonic() >= self.next_look:
+            self.next_look = time.monotonic() + GRAPH_POLL
+            try:
+                for guard in [*self.guards.values(), *self.service_guards]:
+                    guard.check()
+            except IntruderError as err:
+                self.fault = self.fault or GraphError(str(err))
         if self.fault is not None:
             raise self.fault
 

@@ -6,8 +6,8 @@ sensory | physical: which peers it waits for before announcing itself ready), ``
 which needs ``MUJOCO_GL=egl`` or ``osmesa`` in the node's environment) and ``render_size``
 (``"<width>x<height>"``).
 
-After ``sim/reset`` (seed, episode) it publishes step 0: ``/clock``, ``sim/physics_state`` and
-``sim/state``. It steps only when the ``action`` tagged with the current step arrives (an action for
+After ``sim/reset`` (seed, episode) it publishes step 0: ``sim/state``, ``sim/physics_state`` and
+``/clock``. It steps only when the ``action`` tagged with the current step arrives (an action for
 any other step is ignored with a warning, so no step is skipped or repeated; the answer to a probe,
 tagged ``"<episode>/<step>/probe/<k>"``, is ignored without one), publishes
 ``sim/reward`` for that step and then the next step's state, until the episode ends.
@@ -42,6 +42,7 @@ class SimulatorNode(Node):
         super().__init__("simulator")
         self.sim = MujocoSim(declared(self, "env", DEFAULT_ENV), declared(self, "horizon", HORIZON))
         self.obs_names = list(self.sim.layout.names)
+        self.state_names = self.sim.state_names  # built from the model on every call: once, not every step
         self.act_dim = self.sim.layout.act_dim
         self.tag: StepTag | None = None  # the step waiting for its action; None between episodes
         self.global_step = 0  # steps completed in this run: the sim clock
@@ -86,10 +87,12 @@ class SimulatorNode(Node):
         return step_header(self.tag, stamp_ns(self.global_step, self.sim.dt))
 
     def publish_step(self) -> None:
+        """The step's messages, what the next hop waits for first: the attacker and the expert wait for sim/state
+        (and the physical attacker for sim/physics_state), the recorder alone for /clock."""
         header = self.header()
-        self.clock_pub.publish(Clock(clock=header.stamp))
-        self.physics_pub.publish(joint_state(header, self.sim.state_names, self.sim.get_state()))
         self.state_pub.publish(joint_state(header, self.obs_names, self.sim.observe()))
+        self.physics_pub.publish(joint_state(header, self.state_names, self.sim.get_state()))
+        self.clock_pub.publish(Clock(clock=header.stamp))
         if self.camera is not None and self.tag.step % self.render_every == 0:
             self.camera_pub.publish(self._image_type(header=header, format="jpeg", data=self.camera.jpeg()))
 

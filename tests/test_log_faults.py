@@ -308,3 +308,21 @@ def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(r
     (run.dir / "round-0.mcap").write_bytes(log.read_bytes()[:5000])  # the attempt killed mid-round
     record, part = dagger.collect(cfg, run, 0, "")
     assert len(part) == 40 and (run.dir / "round-0.mcap").read_bytes() == log.read_bytes()
+
+
+def test_the_recorder_reads_a_joint_state_s_values_in_place_as_deserialising_does():
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+
+    from aril_ros.mcap_log import cdr_joint_values
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):  # names and arrays of every length, empty ones included, shift the CDR alignment
+        msg = JointState(name=["n" * int(k) for k in rng.integers(0, 9, rng.integers(0, 20))])
+        msg.header.frame_id = "x" * int(rng.integers(0, 12))
+        for field in ("position", "velocity", "effort"):
+            setattr(msg, field, rng.standard_normal(rng.integers(0, 20)).tolist())
+        raw = serialize_message(msg)
+        for field in ("position", "velocity", "effort"):
+            expected = np.array(getattr(deserialize_message(raw, JointState), field), dtype=np.float64)
+            assert cdr_joint_values(raw, field).tobytes() == expected.tobytes()

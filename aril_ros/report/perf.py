@@ -16,7 +16,7 @@ GROUP = "aril_ros.benchmarks"
 def arguments(steps: int, env: str = DEFAULT_ENV) -> dict[str, list[str]]:
     """The report's arguments of each benchmark it knows, in the order they run (``steps``: the engine's)."""
     return {"engine": [f"env:={env}", f"steps:={steps}"],
-            "graph": [f"env:={env}", f"steps:={max(steps // 10, 1000)}", "seconds:=3"],
+            "graph": [f"env:={env}", f"steps:={max(steps // 10, 1000)}", f"bare_steps:={max(steps // 10, 1000)}"],
             "adversary": [f"env:={env}", f"steps:={max(steps * 4, 16384)}"],
             "soak": [f"env:={env}", "episodes:=10", "horizon:=500"]}  # the quick soak: a few minutes
 

@@ -112,8 +112,13 @@ def performance(benchmarks: dict) -> list[str]:
             row = [e, g.get("graph"), g.get("graph+record")]
             lines.append(f"| {mode} | " + " | ".join("—" if v is None else f"{v:.0f} | {v / raw:.2f}" for v in row)
                          + " |")
-        lines += ["", f"rclpy two-process ping-pong: {graph.get('ping_pong_round_trips_per_s', float('nan')):.0f} "
-                      "round trips/s (the graph's ceiling).", ""]
+        bare = {mode: graph[mode]["bare chain"] for mode in MODES if "bare chain" in graph.get(mode, {})}
+        if bare:
+            lines += ["", "Bare 4-process rclpy chain (the same roles, no orchestrator, recorder or guards), measured "
+                          "beside each mode: " + ", ".join(
+                              f"{mode} {v:.0f} steps/s (graph {graph[mode]['graph / bare']:.2f}x, with record "
+                              f"{graph[mode]['graph+record / bare']:.2f}x)" for mode, v in bare.items()) + "."]
+        lines.append("")
     if adversary and "error" not in adversary:
         base = adversary.get("SB3 PPO (1 env)")
         lines += [f"Adversary training, env steps/s ({adversary.get('env')}, one torch thread), ratio to "
