@@ -189,8 +189,16 @@ class PublisherGuard:
         if self.intruded:
             self.refuse()
 
-    def refuse(self):
-        strangers = [info for info in self.publishers(wait=1.0) if bytes(info.endpoint_gid) not in self.admitted]
+    def refuse(self, wait: float = 1.0):
+        # the count that gave the intruder away may come before the graph lists its endpoint (a service client's
+        # reply reader can be discovered before its request writer): look again for up to ``wait`` seconds
+        deadline = time.monotonic() + wait
+        while True:
+            strangers = [info for info in self.publishers(wait=max(deadline - time.monotonic(), 0.0))
+                         if bytes(info.endpoint_gid) not in self.admitted]
+            if strangers or time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
         who = (", ".join(endpoint_text(info) for info in strangers) if strangers
                else "a publisher that left before it could be named")
         raise IntruderError(f"intruder on {self.what}: {who}, not one of this run's nodes; the run stops rather "
