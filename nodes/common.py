@@ -14,6 +14,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -278,7 +279,7 @@ def spin(node: Node) -> int:
     try:
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.2)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGINT through rclpy's handler: a stop
         pass
     except FatalNodeError as err:
         print(f"[{node.get_name()}] FATAL: {err}", file=sys.stderr, flush=True)
