@@ -18,7 +18,7 @@ next() {
     out=runs/i14/def/$env-$mode-$d.pt
     [ -f $out ] && continue
     victim=$(.venv/bin/python -c "from aril_ros.registry import bundled_file; print(bundled_file('$d','$env','$mode'))")
-    echo "$env $mode ${victim#} $out"; return
+    echo "$env $mode $(realpath --relative-to=. "$victim") $out"; return
   done; done; done
 }
 while :; do
