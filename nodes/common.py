@@ -13,8 +13,8 @@ import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.experimental import EventsExecutor
 from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -139,15 +139,15 @@ class PublisherGuard:
         self.matched_total = 0
         self.intruded = False
 
-    def publishers(self, wait: float = 0.0) -> list:
+    def publishers(self, wait: float = 0.0, until=lambda infos: True) -> list:
         """The publishers the graph shows now; with ``wait``, once it knows every one's node name (a node
-        announces its name apart from its endpoints, so for a moment the graph has a GID alone), or after
-        ``wait`` seconds with what it knows."""
+        announces its name apart from its endpoints, so for a moment the graph has a GID alone) and ``until(them)``
+        holds, or after ``wait`` seconds with what it knows."""
         deadline = time.monotonic() + wait
         while True:
             infos = [info for name, no_mangle in self.graph_names
                      for info in self.node.get_publishers_info_by_topic(name, no_mangle=no_mangle)]
-            if all(info.node_name != UNKNOWN_NODE for info in infos) or time.monotonic() >= deadline:
+            if (all(info.node_name != UNKNOWN_NODE for info in infos) and until(infos)) or time.monotonic() >= deadline:
                 return infos
             time.sleep(0.05)
 
@@ -155,12 +155,7 @@ class PublisherGuard:
         """Admit the publishers connected now; returns them. A guarded subscription's matched count must agree
         with the graph (matching and the graph are both updated on discovery, not at the same instant), or a
         publisher admitted by count but not by GID would later pass for an intruder; ``wait`` bounds the wait."""
-        deadline = time.monotonic() + wait
-        while True:
-            infos = self.publishers(wait=wait)
-            if self.matched_count() == len(infos) or time.monotonic() >= deadline:
-                break
-            time.sleep(0.05)
+        infos = self.publishers(wait=wait, until=lambda infos: self.matched_count() == len(infos))
         self.admitted = {bytes(info.endpoint_gid) for info in infos}
         self.matched_total = max(self.matched_total, len(self.admitted))
         return infos
@@ -193,13 +188,11 @@ class PublisherGuard:
     def refuse(self, wait: float = 1.0):
         # the count that gave the intruder away may come before the graph lists its endpoint (a service client's
         # reply reader can be discovered before its request writer): look again for up to ``wait`` seconds
-        deadline = time.monotonic() + wait
-        while True:
-            strangers = [info for info in self.publishers(wait=max(deadline - time.monotonic(), 0.0))
-                         if bytes(info.endpoint_gid) not in self.admitted]
-            if strangers or time.monotonic() >= deadline:
-                break
-            time.sleep(0.05)
+        def stranger(info) -> bool:
+            return bytes(info.endpoint_gid) not in self.admitted
+
+        strangers = [info for info in self.publishers(wait=wait, until=lambda infos: any(map(stranger, infos)))
+                     if stranger(info)]
         who = (", ".join(endpoint_text(info) for info in strangers) if strangers
                else "a publisher that left before it could be named")
         raise IntruderError(f"intruder on {self.what}: {who}, not one of this run's nodes; the run stops rather "
