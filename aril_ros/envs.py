@@ -203,6 +203,11 @@ class ForwardRules:
     """
 
     needs_contact_forces = False
+    reads_kinematics = False
+    """Whether the progress or the observation reads what MuJoCo derives from the state (a body's ``xpos``):
+    a state moved by the physical attack then needs ``mj_forward`` before they are read. Rules that read
+    ``qpos``/``qvel`` alone need nothing: the next ``mj_step`` recomputes every derived quantity from the state
+    (``mj_forward`` writes none of its inputs), so the step is bit for bit the same without it."""
     velocity_clip: float | None = None
     """Hopper and Walker2d observe ``clip(qvel, -10, 10)``."""
 
@@ -285,6 +290,7 @@ class AntRules(HealthyRules):
     the clipped external contact forces ``cfrc_ext``, which its observation ends with."""
 
     needs_contact_forces = True
+    reads_kinematics = True
 
     def __init__(self, env: MujocoEnv, layout: ObsLayout):
         super().__init__(env, layout)
@@ -448,14 +454,19 @@ def observe_sims(sims: list[MujocoSim]) -> np.ndarray:
 def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = SERIAL) -> np.ndarray:
     """The physical attack on each simulator (``delta[i]`` for ``sims[i]``, observation coordinates): its
     real zero-order state moved by the one rule the graph's attacker applies too
-    (:func:`aril_ros.step.perturb_qpos`), then ``mj_forward``. Returns the new observations."""
+    (:func:`aril_ros.step.perturb_qpos`), then ``mj_forward`` where the env's rules read derived quantities
+    (:attr:`ForwardRules.reads_kinematics`; always for an env gymnasium steps itself). Returns the new
+    observations."""
 
     model = sims[0].model  # one model for all, as in step_sims
+    rules = sims[0].rules
+    forward = rules is None or rules.reads_kinematics
 
     def move(i: int) -> None:
         sim = sims[i]
         perturb_qpos(sim.layout, sim.qpos, delta[i])
-        mujoco.mj_forward(model, sim.data)
+        if forward:
+            mujoco.mj_forward(model, sim.data)
 
     pool.run(move, len(sims))
     return observe_sims(sims)

@@ -52,9 +52,9 @@ def graph_steps_per_s(cfg, mode: str, record: bool) -> float:
 
 
 def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
-    expert = resolve_policy("expert", cfg.env)
+    policy, expert = resolve_policy("bundled", cfg.env), resolve_policy("expert", cfg.env)  # the graph's two
     attack = make_attack(attack_for_mode(mode), layout_of(cfg.env), cfg.eps)
-    engine = RolloutEngine(cfg.env, expert, expert, attack, mode, n_envs=n_envs, horizon=cfg.steps // 2)
+    engine = RolloutEngine(cfg.env, policy, expert, attack, mode, n_envs=n_envs, horizon=cfg.steps // 2)
     started = time.perf_counter()
     traj = engine.rollout(max(2, n_envs), seed=0)
     return int(traj.length.sum()) / (time.perf_counter() - started)

@@ -230,6 +230,26 @@ def test_batched_step_and_perturbation_do_not_depend_on_the_batch(env_id):
     batch.close()
 
 
+@pytest.mark.parametrize("env_id", BATCHED_ENVS)
+def test_the_engines_physical_attack_steps_as_the_graphs_set_state_does(env_id):
+    """The engine moves the state and calls ``mj_forward`` only where the rules read derived quantities; the
+    graph's simulator replaces the whole state and always calls it. Every step after is the same bit for bit."""
+    from aril_ros.step import physical_state
+
+    lay, rng = layout_of(env_id), np.random.default_rng(3)
+    engine, graph = MujocoSim(env_id), MujocoSim(env_id)
+    engine.reset(seed=4), graph.reset(seed=4)
+    for t in range(8):
+        delta = np.zeros(lay.obs_dim)
+        delta[lay.position] = rng.uniform(-0.05, 0.05, lay.n_position)
+        graph.set_state(physical_state(lay, graph.get_state(), delta))
+        assert engine.perturb(delta).tobytes() == graph.observe().tobytes(), f"{env_id} step {t}"
+        action = rng.uniform(-1, 1, lay.act_dim)
+        (obs, *outcome), (want_obs, *want_outcome) = engine.step(action), graph.step(action)
+        assert obs.tobytes() == want_obs.tobytes() and outcome == want_outcome, f"{env_id} step {t}"
+        assert engine.get_state().tobytes() == graph.get_state().tobytes(), f"{env_id} step {t}"
+
+
 def test_an_env_without_batched_rules_is_stepped_by_gymnasium():
     sim = MujocoSim("InvertedPendulum-v5")
     assert sim.rules is None and "InvertedPendulumEnv has no batched rules" in sim.batched

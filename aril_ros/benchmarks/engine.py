@@ -5,7 +5,8 @@ policy + expert + attack in the loop.
 
 Prints steps/s of (1) gymnasium's ``env.step`` (as ``gym.make`` builds it, every wrapper) on one env with
 precomputed random actions, (2) the engine in ``clean`` mode and (3) in ``sensory`` and ``physical`` mode
-with the random attack, each with the bundled expert (or ``policy:=``) as both policy and labeller, and each
+with the random attack, each with the graph's default policy (the bundled DAgger learner, a 64x64 MLP; or
+``policy:=``) acting and the bundled expert (256x256) labelling, like the graph and the bare chain, and each
 engine figure as a ratio of the raw one. The four are measured in one process, in ``rounds`` interleaved
 slices of ``steps / rounds`` steps each (set-up excluded), and each figure is its best slice: on a shared
 machine the load then falls on all four alike, and a slice another process interrupted does not count.
@@ -37,7 +38,8 @@ class BenchConfig:
     rounds: int = arg(4, "interleaved slices each measurement is split into; each figure is its best slice")
     n_envs: int = arg(32, "simulators the engine runs side by side")
     physics_threads: int = arg(0, "threads stepping the engine's physics (0: one per core)")
-    policy: str = arg("expert", "policy (and labeller): a bundled name or a policy file")
+    policy: str = arg("bundled", "the acting policy: bundled (the graph's default), another bundled name or a policy "
+                                 "file; the bundled expert labels")
     eps: float = arg(0.05, "attack budget for the attacked modes")
     threads: int = arg(1, "torch threads")
 
@@ -62,9 +64,9 @@ def raw_steps(env_id: str):
 def engine_steps(cfg: BenchConfig, mode: str):
     """The engine in ``mode``: a function running at least ``k`` more env steps (whole engine steps), and
     the engine."""
-    expert = resolve_policy(cfg.policy, cfg.env)
+    policy, expert = resolve_policy(cfg.policy, cfg.env), resolve_policy("expert", cfg.env)
     attack = make_attack("none" if mode == "clean" else "random", layout_of(cfg.env), cfg.eps)
-    engine = RolloutEngine(cfg.env, expert, expert, attack, mode, n_envs=cfg.n_envs,
+    engine = RolloutEngine(cfg.env, policy, expert, attack, mode, n_envs=cfg.n_envs,
                            physics_threads=cfg.physics_threads or None)
     batches = engine.iter_steps(episodes=10**9, seed=0)
 
@@ -96,7 +98,8 @@ def main(argv):
         owner.close()
     raw = best["raw env.step"]
     print(f"{cfg.env}, {cfg.steps} steps each in {cfg.rounds} interleaved slices (best slice), engine "
-          f"n_envs={cfg.n_envs}, physics threads={cfg.physics_threads or 'one per core'}, torch threads={cfg.threads}; {how}")
+          f"n_envs={cfg.n_envs}, policy {cfg.policy} + expert + attack, physics threads="
+          f"{cfg.physics_threads or 'one per core'}, torch threads={cfg.threads}; {how}")
     print(f"{'':<18}{'steps/s':>10}{'vs raw':>9}")
     for name, value in best.items():
         print(f"{name:<18}{value:>10.0f}{value / raw:>9.2f}")
