@@ -28,8 +28,8 @@ from .envs import HORIZON
 from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate
 from .provenance import stamp
-from .registry import (ATTACKED_MODES, ATTACKS, CALIBRATION, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS,
-                       adversary_path, bundled_file, calibrated_eps)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
+                       bundled_file, calibrated_eps, user_calibration)
 from .report.stats import summarise, worst_attack
 
 CALIBRATION_MARKDOWN = "results/eps_calibration.md"
@@ -86,15 +86,16 @@ class CalibrationConfig:
     episodes: int = arg(10, "deterministic episodes per cell")
     seed: int = arg(seeds.CALIBRATION, "env seed of the first episode")
     horizon: int = arg(HORIZON, "steps per episode")
-    out: str = arg("", "output path without suffix (.json and .md are written); unset: the bundled calibration "
-                       f"(aril_ros/data/{CALIBRATION.name}, what eps:=0 reads) and {CALIBRATION_MARKDOWN}")
+    out: str = arg("", "output path without suffix (.json and .md are written); unset: the user's calibration "
+                       "(eps_calibration.json in the user data folder, $ARIL_DATA, which eps:=0 reads where the "
+                       f"bundled one has no row) and {CALIBRATION_MARKDOWN}")
 
 
 def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
     """Sweep the grid for each env and mode; rows of other envs/modes already in the output (same
     victim and rule) are kept, each with the command that made it."""
     made = stamp("aril calibrate-eps", cfg)
-    json_path, md_path = _outputs(cfg.out, "") if cfg.out else (CALIBRATION, Path(CALIBRATION_MARKDOWN))
+    json_path, md_path = _outputs(cfg.out, "") if cfg.out else (user_calibration(), Path(CALIBRATION_MARKDOWN))
     fresh = []
     grid = sorted(float(e) for e in comma_list(cfg.grid))
     for env in comma_list(cfg.envs):
@@ -149,7 +150,7 @@ class AttackTableConfig:
     envs: str = arg(",".join(PAPER_ENVS), "comma-separated env ids")
     policy: str = arg(DEFAULT_POLICY, "the victim: a bundled name or a policy file")
     expert: str = arg("expert", "the expert")
-    calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration)")
+    calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration, then the user's)")
     episodes: int = arg(20, "deterministic episodes per cell")
     seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)")
     k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
@@ -168,7 +169,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     fresh = []
     for env in comma_list(cfg.envs):
-        eps = calibrated_eps(env, cfg.mode, cfg.calibration or CALIBRATION)
+        eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (adversary_path(env, cfg.mode) if cfg.policy == DEFAULT_POLICY
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
@@ -238,7 +239,7 @@ class DefenseTableConfig:
     envs: str = arg(",".join(PAPER_ENVS), "comma-separated env ids")
     defenses: str = arg(",".join(DEFENSES), "comma-separated bundled learners (aril and dr: the ones of mode:=)")
     expert: str = arg("expert", "the expert")
-    calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration)")
+    calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration, then the user's)")
     episodes: int = arg(20, "deterministic episodes per cell")
     seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)")
     k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
@@ -261,7 +262,7 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
         raise ValueError(f"unknown defenses {unknown}; choose from {', '.join(DEFENSES)}")
     fresh = []
     for env in comma_list(cfg.envs):
-        eps = calibrated_eps(env, cfg.mode, cfg.calibration or CALIBRATION)
+        eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         common = dict(env=env, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, k=cfg.k)
         clean_cells = {}
 

@@ -8,7 +8,8 @@ the action bounds, or PPO's clipped mean with the normaliser's statistics, is ex
 :class:`MLPPolicy` computes, so the exported file needs neither SB3 nor the training code. During training the exported actor is
 evaluated on the rollout engine every ``eval_every`` steps and the best one is kept.
 
-Bundled experts live where :func:`aril_ros.registry.bundled_path` says (``aril_ros/data/expert/``).
+Bundled experts live where :func:`aril_ros.registry.bundled_path` says (``aril_ros/data/expert/``); a user's
+go to their data folder (:func:`aril_ros.registry.user_path`) unless ``out:=`` says otherwise.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from .args import arg
 from .envs import layout_of, make_gym_env
 from .policy import MLPPolicy, meta_for_env, save_policy
 from .provenance import stamp
-from .registry import DEFAULT_ENV, bundled_path
+from .registry import DEFAULT_ENV, shadowed_by_bundled, user_path
 
 # rl-baselines3-zoo's tuned settings for the MuJoCo envs (hyperparams/sac.yml, ppo.yml).
 HYPERPARAMETERS = {
@@ -78,7 +79,8 @@ class ExpertConfig:
     seed: int = arg(0, "seed of the algorithm and of its env")
     eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
     eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
-    out: str = arg("", "where to write the expert (default: the bundled aril_ros/data/expert/<env>.pt)")
+    out: str = arg("", "where to write the expert (default: expert/<env>.pt in the user data folder, $ARIL_DATA, "
+                       "by default ~/.local/share/aril_ros; then expert:=expert finds it where none is bundled)")
     threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)")
     checkpoint: str = arg("", "a folder to save the training state to at every evaluation (resume:= takes it)")
     keep_buffer: bool = arg(False, "sac: save the replay buffer with the checkpoint too (large; same-machine resumes)")
@@ -104,7 +106,7 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
         raise ValueError(f"algo:= must be one of {', '.join(HYPERPARAMETERS)}, got {cfg.algo!r}")
     torch.set_num_threads(cfg.threads)
     layout_of(cfg.env)  # fail fast on ids that are not MuJoCo envs
-    out = Path(cfg.out) if cfg.out else bundled_path("expert", cfg.env)
+    out = Path(cfg.out) if cfg.out else user_path("expert", cfg.env)
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
     made_by = made_by or stamp("aril train-expert", cfg)
@@ -191,6 +193,9 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
     if cfg.steps % cfg.eval_every:
         evaluate(model.num_timesteps)
     env.close()
+    note = shadowed_by_bundled("expert", cfg.env, out)
+    if note:
+        log(note, flush=True)
     log(json.dumps({"env": cfg.env, "out": str(out), "best_eval_return": best["mean_return"],
                     "train_seconds": round(time.time() - started, 1)}), flush=True)
     return out

@@ -18,7 +18,7 @@ from .args import arg
 from .dataset import DaggerDataset
 from .policy import MLPPolicy, meta_for_env, resolve_policy, save_policy
 from .provenance import stamp
-from .registry import DEFAULT_ENV, bundled_path
+from .registry import DEFAULT_ENV, shadowed_by_bundled, user_path
 from .rollout import RolloutEngine
 
 
@@ -59,7 +59,7 @@ class BCConfig:
     batch: int = arg(256, "minibatch size")
     seed: int = arg(0, "seed of the weights and the batches; the demonstrations take the seed's training "
                        "block (aril_ros.seeds.collection(seed, 0))")
-    out: str = arg("", "where to write the policy (default: the bundled aril_ros/data/bc/<env>.pt)")
+    out: str = arg("", "where to write the policy (default: bc/<env>.pt in the user data folder, $ARIL_DATA)")
 
 
 def train_bc(cfg: BCConfig, log=print) -> Path:
@@ -73,6 +73,9 @@ def train_bc(cfg: BCConfig, log=print) -> Path:
     policy = fit_policy(demos, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch, cfg.seed, provenance)
     returns = RolloutEngine(cfg.env, policy, expert, n_envs=5).rollout(5, seed=seeds.SELECTION).returns
     policy.meta.provenance["eval"] = {"episodes": 5, "seed": seeds.SELECTION, "mean_return": float(returns.mean())}
-    out = save_policy(policy, cfg.out or bundled_path("bc", cfg.env))
+    out = save_policy(policy, cfg.out or user_path("bc", cfg.env))
+    note = shadowed_by_bundled("bc", cfg.env, out)
+    if note:
+        log(note)
     log(json.dumps({"env": cfg.env, "out": str(out), "eval_return": round(float(returns.mean()), 1)}))
     return out

@@ -10,15 +10,23 @@ included, takes them from here. Bundled files are package data, found from the i
     aril_ros/data/defense-adversary/<env>-<mode>-<defense>.pt   ARIL-A against each other defense
     aril_ros/data/eps_calibration.json                  the eps per env and mode (aril calibrate-eps)
 
+A user's own trained files go to the user data folder (:func:`user_data_dir`: ``$ARIL_DATA``, by default
+``~/.local/share/aril_ros``) in the same layout, never into the installed package. A name resolves to the
+bundled file first and to the user's where nothing is bundled (``policy:=expert env:=Hopper-v5`` once
+``aril train-expert env:=Hopper-v5`` has run), so the figures of the bundled envs never change behind a
+user's back.
+
 This module imports neither torch nor MuJoCo.
 """
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-CALIBRATION = DATA_DIR / "eps_calibration.json"
+CALIBRATION_NAME = "eps_calibration.json"
+CALIBRATION = DATA_DIR / CALIBRATION_NAME
 
 PAPER_ENVS = ("HalfCheetah-v5", "Ant-v5", "Swimmer-v5")
 DEFAULT_ENV = PAPER_ENVS[0]
@@ -60,27 +68,62 @@ def check_name(kind: str, name: str, names) -> str:
     return name
 
 
-def bundled_path(policy: str, env_id: str, mode: str | None = None) -> Path:
-    """Where a bundled policy lives (whether or not it exists); ``dr`` and ``aril`` have one per mode."""
+def user_data_dir() -> Path:
+    """The user's data folder: ``$ARIL_DATA``, by default ``~/.local/share/aril_ros`` (read at each call)."""
+    return Path(os.environ.get("ARIL_DATA") or Path.home() / ".local" / "share" / "aril_ros").expanduser()
+
+
+def bundled_path(policy: str, env_id: str, mode: str | None = None, root: Path | None = None) -> Path:
+    """Where the policy of that name lives under ``root`` (default: the package's data), whether or not it
+    exists; ``dr`` and ``aril`` have one per mode."""
+    root = DATA_DIR if root is None else root
     policy = DEFAULT_POLICY if policy == "bundled" else check_name("bundled policy", policy, BUNDLED_NAMES)
     if policy not in PER_MODE_POLICIES:
-        return DATA_DIR / policy / f"{env_id}.pt"
+        return root / policy / f"{env_id}.pt"
     if mode not in ATTACKED_MODES:
         raise BundledFileError(f"the bundled {policy} policies are trained per attack mode: it takes mode sensory or "
                                f"physical (got {mode}); for another mode pass the file, e.g. "
-                               f"{DATA_DIR / policy}/{env_id}-sensory.pt")
-    return DATA_DIR / policy / f"{env_id}-{mode}.pt"
+                               f"{root / policy}/{env_id}-sensory.pt")
+    return root / policy / f"{env_id}-{mode}.pt"
+
+
+def user_path(policy: str, env_id: str, mode: str | None = None) -> Path:
+    """Where a user's own file of that name goes (what the trainers write when given no ``out:=``)."""
+    return bundled_path(policy, env_id, mode, user_data_dir())
+
+
+def train_hint(policy: str, env_id: str, mode: str | None, out: Path) -> str:
+    """The command that makes the file of a name at ``out`` (the expert's and BC's trainers write there by default)."""
+    if policy in ("expert", "bc"):
+        return f"aril train-{policy} env:={env_id}"
+    if policy == "gail":
+        return f"aril train-gail env:={env_id} out:={out}"
+    return (f"aril train-learner algorithm:={policy} env:={env_id}"
+            + (f" mode:={mode}" if policy in PER_MODE_POLICIES else "") + f" out:={out}")
+
+
+def shadowed_by_bundled(policy: str, env_id: str, written: Path) -> str | None:
+    """What to tell a user who wrote their own file of a name that a bundled file keeps (None if nothing is
+    bundled by that name for that env): the name resolves to the bundled file first."""
+    bundled = bundled_path(policy, env_id)
+    if not bundled.is_file() or Path(written).resolve() == bundled:
+        return None
+    return (f"note: {env_id} has a bundled {policy}, which the name {policy} keeps meaning; use this one by its path "
+            f"({policy if policy == 'expert' else 'policy'}:={written})")
 
 
 def bundled_file(policy: str, env_id: str, mode: str | None = None) -> Path:
-    """The file of a bundled policy, with the bundled ones listed when it is missing."""
-    path = bundled_path(policy, env_id, mode)
-    if not path.is_file():
-        kind = path.parent.name
-        raise BundledFileError(f"no bundled {kind} for {env_id}{f' ({mode})' if kind in PER_MODE_POLICIES else ''} "
-                               f"(looked for {path}); bundled: "
-                               + (", ".join(sorted(p.stem for p in path.parent.glob("*.pt"))) or "none"))
-    return path
+    """The file of a name: the bundled one, else the user's; when neither exists, an error saying where it
+    looked, what is bundled, and how to make one or pass a file."""
+    package, user = bundled_path(policy, env_id, mode), user_path(policy, env_id, mode)
+    for path in (package, user):
+        if path.is_file():
+            return path
+    kind = package.parent.name
+    have = sorted({p.stem for folder in (package.parent, user.parent) for p in folder.glob("*.pt")})
+    raise BundledFileError(f"no {kind} for {env_id}{f' ({mode})' if kind in PER_MODE_POLICIES else ''} "
+                           f"(looked for {package} and {user}); there are: {', '.join(have) or 'none'}. "
+                           f"Make one with `{train_hint(kind, env_id, mode, user)}`, or pass a policy file")
 
 
 def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Path:
@@ -91,16 +134,26 @@ def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Pat
     return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
 
 
-def calibrated_eps(env_id: str, mode: str, calibration: str | Path = CALIBRATION) -> float:
-    """The eps chosen for ``env_id`` and ``mode`` by ``aril calibrate-eps`` (the paper's 40% FGSM rule)."""
-    path = Path(calibration)
-    if not path.is_file():
-        raise ValueError(f"no eps calibration at {path}: run aril calibrate-eps, or pass eps:=")
-    for row in json.loads(path.read_text())["rows"]:
-        if (row["env"], row["mode"]) == (env_id, mode):
-            return float(row["chosen_eps"])
-    raise ValueError(f"{path} has no eps for {env_id} {mode}: run aril calibrate-eps envs:={env_id} modes:={mode}, "
-                     "or pass eps:=")
+def user_calibration() -> Path:
+    """The calibration ``aril calibrate-eps`` writes by default: the user's, beside their policies."""
+    return user_data_dir() / CALIBRATION_NAME
+
+
+def calibrated_eps(env_id: str, mode: str, calibration: str | Path | None = None) -> float:
+    """The eps chosen for ``env_id`` and ``mode`` by ``aril calibrate-eps`` (the paper's 40% FGSM rule): from
+    ``calibration``, or by default the bundled calibration, then the user's."""
+    paths = [Path(calibration)] if calibration else [CALIBRATION, user_calibration()]
+    for path in paths:
+        if not path.is_file():
+            continue
+        for row in json.loads(path.read_text())["rows"]:
+            if (row["env"], row["mode"]) == (env_id, mode):
+                return float(row["chosen_eps"])
+    looked = " and ".join(str(p) for p in paths)
+    raise ValueError(f"no calibrated eps for {env_id} {mode} (looked in {looked}): pass eps:=<value>, or calibrate "
+                     f"one against a learner of {env_id}: aril calibrate-eps envs:={env_id} modes:={mode} "
+                     "policy:=<a learner: a bundled name or a file> (it needs an expert too: expert:=, or "
+                     f"`aril train-expert env:={env_id}` first)")
 
 
 def attack_for_mode(mode: str, attack: str = "") -> str:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 
 import pytest
 import torch
@@ -10,6 +11,9 @@ import torch
 # upper safe range (215-232), whose DDS ports keep clear of Linux's ephemeral ones.
 os.environ.setdefault("ROS_DOMAIN_ID", str(215 + os.getpid() % 18))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+# Trainers write a user's files to $ARIL_DATA by default: the tests' go to a folder of their own, never the
+# home of whoever runs them (the node processes the graph tests start inherit it).
+os.environ["ARIL_DATA"] = tempfile.mkdtemp(prefix="aril_data-tests-")
 
 from aril_ros.policy import MLPPolicy, meta_for_env  # noqa: E402
 

@@ -60,7 +60,7 @@ def test_bundled_is_the_default_bundled_policy():
 
 
 def test_resolve_policy_errors():
-    with pytest.raises(PolicyFileError, match="no bundled expert for Hopper-v5"):
+    with pytest.raises(PolicyFileError, match="no expert for Hopper-v5 .*aril train-expert env:=Hopper-v5"):
         resolve_policy("expert", "Hopper-v5")
     with pytest.raises(PolicyFileError, match="neither a bundled policy name"):
         resolve_policy("dagger_typo", "Swimmer-v5")
