@@ -28,6 +28,7 @@ from .mcap_log import RunLogError, recover
 from .policy import PolicyFileError
 from .render import RenderConfig, RenderError, render
 from .report import ReportConfig, build_report
+from .scorecard import ScorecardConfig, scorecard
 
 
 def run_eval(cfg: EvalConfig) -> dict:
@@ -83,6 +84,8 @@ COMMANDS = {
                              "strongest attack against it; writes results/."),
     "report": Command(ReportConfig, build_report,
                       "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
+    "scorecard": Command(ScorecardConfig, scorecard, "How robust is a policy: clean vs every attack on the same "
+                         "episodes, paired drops, eps sweeps, the worst case; one page with figures."),
     "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
     "log-recover": Command(RecoverConfig, run_recover, "Rewrite the intact steps of a cut-short or damaged run log."),
 }

@@ -20,6 +20,8 @@ ATTACK_TABLE = 2_000
 """``aril attack-table``: 2000..2999."""
 DEFENSE_TABLE = 3_000
 """``aril defense-table`` and ``aril report`` (every table cell and sweep point): 3000..3999."""
+SCORECARD = 4_000
+"""``aril scorecard``: 4000..4999 (every cell the same episodes)."""
 SELECTION = 10_000
 """Keeping the best during training (experts, GAIL, BC's check): 10000..10999."""
 GAIL_DEMOS = 20_000

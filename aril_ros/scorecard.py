@@ -1,0 +1,232 @@
+"""``aril scorecard``: how robust is this policy? One command, one page.
+
+    aril scorecard policy:=runs/my-policy.pt env:=HalfCheetah-v5 modes:=sensory,physical budget:=quick
+
+For each attacked mode, on the in-process engine: the clean return and every attack's return on the same env
+seeds (paired: episode ``i`` resets with seed ``seed + i`` in every cell), the drop from clean with a paired
+Student-t 95% interval, an eps sweep (0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the
+expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, SPSA^k
+(zeroth order: it queries the policy's actions) and ARIL-A trained against *this* policy within the budget;
+and, since the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
+calibrated one for the env and mode unless ``eps:=`` sets it.
+
+Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy name>/``)::
+
+    scorecard.md             the page: per mode a table and the sweep figure
+    scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|
+    sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
+    adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps)
+
+A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
+evaluations at most.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import seeds
+from .adversary import AdversaryConfig, load_adversary, train_adversary
+from .args import arg, comma_list
+from .envs import HORIZON
+from .evaluation import EvalConfig, evaluate
+from .policy import resolve_policy
+from .provenance import stamp
+from .registry import ATTACKED_MODES, ATTACKS, BUNDLED_NAMES, DEFAULT_ENV, bundled_file, calibrated_eps, check_name
+from .report.stats import t95
+
+
+@dataclass(frozen=True)
+class Budget:
+    """How much a scorecard spends: episodes per cell and ARIL-A's training steps per mode."""
+
+    episodes: int
+    adversary_steps: int
+
+
+BUDGETS = {"quick": Budget(episodes=5, adversary_steps=200_000), "full": Budget(episodes=20, adversary_steps=1_000_000)}
+SCALES = (0.25, 0.5, 1.0, 2.0)
+"""The eps sweep, as multiples of the mode's eps."""
+SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
+"""In the order the page lists them: noise, the black-box attacks, the white-box ones."""
+
+
+@dataclass
+class ScorecardConfig:
+    """Arguments of ``aril scorecard``."""
+
+    policy: str = arg("bundled", "the policy to score: a policy file, or a bundled name (dagger, aril, ...)")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
+    modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes: sensory, physical")
+    budget: str = arg("quick", f"{' or '.join(BUDGETS)}: " + "; ".join(
+        f"{name} {b.episodes} episodes per cell, ARIL-A trained {b.adversary_steps:,} steps per mode"
+        for name, b in BUDGETS.items()))
+    eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)")
+    expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
+    seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)")
+    episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)")
+    adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)")
+    horizon: int = arg(HORIZON, "steps per episode")
+    out: str = arg("", "the folder to write (default runs/scorecard-<env>-<policy name>)")
+
+
+def scorecard(cfg: ScorecardConfig, log=print) -> Path:
+    """Score the policy mode by mode, write the folder, return the page's path."""
+    budget, modes = check_config(cfg)
+    out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
+    out.mkdir(parents=True, exist_ok=True)
+    clock = Progress(1 + len(modes) * len(SCORED_ATTACKS) * len(SCALES), log)
+    clean = run_cell(cfg, budget, "clean", "none", 0.0, None, clock)  # the same episodes as every attacked cell
+    results = {}
+    for mode in modes:
+        eps = cfg.eps or calibrated_eps(cfg.env, mode)
+        adversary = ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log)
+        cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock)
+                          for scale in SCALES} for attack in SCORED_ATTACKS}
+        results[mode] = {"eps": eps, "eps_source": "eps:=" if cfg.eps else "calibrated", "adversary": str(adversary),
+                         "clean": clean, "attacks": cells, "worst": worst_case(clean, cells)}
+        plot_sweep(results[mode], cfg, mode, out / f"sweep-{mode}.png")
+    payload = {**stamp("aril scorecard", cfg), "budget": vars(budget), "scales": SCALES, "modes": results}
+    (out / "scorecard.json").write_text(json.dumps(payload, indent=1) + "\n")
+    page = out / "scorecard.md"
+    page.write_text(markdown(payload, cfg))
+    log(f"[scorecard] {page}: " + "; ".join(
+        f"{mode} worst {ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%" for mode, r in results.items()))
+    return page
+
+
+def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str]]:
+    """The budget and modes, or an error naming the bad argument, before anything runs."""
+    chosen = BUDGETS[check_name("budget", cfg.budget, tuple(BUDGETS))]
+    budget = Budget(cfg.episodes or chosen.episodes, cfg.adversary_steps or chosen.adversary_steps)
+    modes = [check_name("mode", m, ATTACKED_MODES) for m in comma_list(cfg.modes)]
+    if cfg.policy == "external":
+        raise ValueError("policy:=external (a live node) is not scored by aril scorecard yet; attack the node one "
+                         "attack at a time with python run_graph.py policy:=external attack:=random|spsa|aril_a")
+    resolve_policy(cfg.policy, cfg.env, modes[0])  # a missing or mismatched policy is reported first
+    resolve_policy(cfg.expert, cfg.env)
+    return budget, modes
+
+
+def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
+    """ARIL-A trained against the policy in ``mode`` at ``eps``: the one at ``path`` when it was trained for the
+    same policy file, eps and steps, else trained now (the longest part of a scorecard)."""
+    victim = str(bundled_file(cfg.policy, cfg.env, mode)) if cfg.policy in BUNDLED_NAMES else cfg.policy
+    if path.exists():
+        adversary = load_adversary(path)
+        made = adversary.meta.get("provenance", {})
+        if made.get("victim") == victim and made.get("steps", 0) >= budget.adversary_steps and adversary.eps == eps:
+            log(f"[scorecard] {mode}: reusing {path}")
+            return path
+    log(f"[scorecard] {mode}: training ARIL-A against {victim} ({budget.adversary_steps:,} steps, eps {eps:g}); "
+        "the longest part")
+    return train_adversary(AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
+                                           steps=budget.adversary_steps, out=str(path)), log=log)
+
+
+def run_cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: Path | None,
+             clock: Progress) -> dict:
+    """One evaluation: every episode's figures and their summary. ARIL-A runs at its own eps when ``eps`` is, and
+    scaled to ``eps`` otherwise (its perturbation times eps / its eps)."""
+    started, episodes = time.monotonic(), []
+    summary = evaluate(EvalConfig(
+        env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
+        attack_file=str(adversary) if attack == "aril_a" else "", rescale=attack == "aril_a",
+        episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon), progress=episodes.append)
+    episodes.sort(key=lambda e: e.episode)
+    cell = {"eps": eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
+            "episodes": [{"episode": e.episode, "env_seed": cfg.seed + e.episode, "return": e.reward,
+                          "expert_loss": round(e.expert_loss, 6), "steps": e.steps, "max_abs_delta": round(e.max_delta, 6)}
+                         for e in episodes]}
+    clock.done(f"{mode} {ATTACKS[attack]} eps {eps:g}: return {summary['mean_return']:.1f}",
+               time.monotonic() - started)
+    return cell
+
+
+def paired_drop(clean: dict, attacked: dict) -> dict:
+    """The drop from clean over the same episodes: mean, and a Student-t 95% interval of the per-episode
+    differences, in return and in % of the clean mean."""
+    clean_returns = np.array([e["return"] for e in clean["episodes"]])
+    diff = clean_returns - np.array([e["return"] for e in attacked["episodes"]])
+    half = t95(len(diff) - 1) * diff.std(ddof=1) / math.sqrt(len(diff)) if len(diff) > 1 else float("nan")
+    base = abs(clean_returns.mean()) or 1.0
+    mean = float(diff.mean())
+    return {"drop": mean, "ci95": float(half), "drop_pct": -100 * mean / base,
+            "ci95_pct": [-100 * (mean + half) / base, -100 * (mean - half) / base]}
+
+
+def worst_case(clean: dict, cells: dict) -> dict:
+    """The attack with the lowest return at scale 1, with its paired drop."""
+    attack = min(cells, key=lambda a: cells[a][1.0]["mean_return"])
+    return {"attack": attack, "return": cells[attack][1.0]["mean_return"], **paired_drop(clean, cells[attack][1.0])}
+
+
+def markdown(payload: dict, cfg: ScorecardConfig) -> str:
+    budget = payload["budget"]
+    lines = [f"# Scorecard: {cfg.policy} on {cfg.env}", "",
+             f"`{payload['command']}` (revision {payload['git_revision']}, {payload['created']}). Budget "
+             f"{cfg.budget}: {budget['episodes']} episodes per cell, env seeds {cfg.seed}..{cfg.seed + budget['episodes'] - 1} "
+             f"in every cell (paired); ARIL-A trained {budget['adversary_steps']:,} steps against this policy per "
+             "mode. Drop: mean of the per-episode differences from clean, in % of the clean return, with a Student-t "
+             "95% interval. Every episode is in `scorecard.json`.", ""]
+    for mode, r in payload["modes"].items():
+        worst = r["worst"]
+        lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
+                  f"**Worst case: {ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
+                  f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
+                  f"(clean {r['clean']['mean_return']:.1f}).", "",
+                  "| attack | return at eps | drop at eps [95%] | expert loss | return at " +
+                  ", ".join(f"{s:g}x" for s in payload["scales"]) + " eps |", "|---|---|---|---|---|",
+                  f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | |"]
+        for attack, sweep in r["attacks"].items():
+            at = sweep[1.0]
+            drop = paired_drop(r["clean"], at)
+            lines.append(f"| {ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
+                         f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
+                         + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in payload["scales"]) + " |")
+        lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
+    return "\n".join(lines)
+
+
+def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, path: Path) -> None:
+    """Return against eps, one line per attack (mean and paired 95% interval), the clean return as a band."""
+    from .report.plots import _pyplot
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    clean = result["clean"]["mean_return"]
+    for attack, sweep in result["attacks"].items():
+        x = [sweep[s]["eps"] for s in SCALES]
+        y = np.array([sweep[s]["mean_return"] for s in SCALES])
+        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in SCALES])
+        ax.plot(x, y, marker="o", ms=3, label=ATTACKS[attack])
+        ax.fill_between(x, y - half, y + half, alpha=0.12)
+    ax.axhline(clean, color="black", lw=1, ls="--", label="clean")
+    ax.axvline(result["eps"], color="grey", lw=0.8, ls=":")
+    ax.set(xscale="log", xlabel="eps (dotted: the scorecard's)", ylabel="return",
+           title=f"{cfg.policy} on {cfg.env}, {mode}")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+class Progress:
+    """Evaluation cells done out of ``total``, and an ETA from the mean time per cell so far (the adversary
+    trainings, which print their own progress, are not in it)."""
+
+    def __init__(self, total: int, log):
+        self.total, self.log, self.count, self.seconds = total, log, 0, 0.0
+
+    def done(self, what: str, seconds: float) -> None:
+        self.count += 1
+        self.seconds += seconds
+        eta = self.seconds / self.count * (self.total - self.count)
+        self.log(f"[scorecard] cell {self.count}/{self.total} {what} ({seconds:.0f} s); evaluations left: "
+                 f"~{eta / 60:.1f} min", flush=True)

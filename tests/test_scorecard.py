@@ -1,0 +1,76 @@
+"""aril scorecard: paired cells, the drop and its interval from the episodes, the page, reuse of the adversary."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from aril_ros.evaluation import EvalConfig, evaluate
+from aril_ros.report.stats import t95
+from aril_ros.scorecard import SCALES, SCORED_ATTACKS, ScorecardConfig, scorecard
+
+
+@pytest.fixture(scope="module")
+def small_card(tmp_path_factory):
+    out = tmp_path_factory.mktemp("card")
+    lines = []
+    cfg = ScorecardConfig(policy="dagger", env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096,
+                          horizon=25, out=str(out))
+    page = scorecard(cfg, log=lambda line, **_: lines.append(line))
+    return cfg, out, page, lines
+
+
+def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small_card):
+    cfg, out, _, _ = small_card
+    card = json.loads((out / "scorecard.json").read_text())
+    sensory = card["modes"]["sensory"]
+    seeds_of = lambda cell: [e["env_seed"] for e in cell["episodes"]]  # noqa: E731
+    assert seeds_of(sensory["clean"]) == [cfg.seed, cfg.seed + 1, cfg.seed + 2]
+    assert set(sensory["attacks"]) == set(SCORED_ATTACKS)
+    for sweep in sensory["attacks"].values():
+        assert [float(s) for s in sweep] == list(SCALES)
+        for scale, cell in sweep.items():
+            assert seeds_of(cell) == seeds_of(sensory["clean"])
+            assert cell["eps"] == pytest.approx(float(scale) * sensory["eps"])
+            assert max(e["max_abs_delta"] for e in cell["episodes"]) <= cell["eps"] + 1e-12
+    clean = evaluate(EvalConfig(env=cfg.env, policy="dagger", episodes=3, seed=cfg.seed, horizon=25))
+    assert [round(e["return"], 3) for e in sensory["clean"]["episodes"]] == clean["returns"]
+
+
+def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_card):
+    _, out, page, _ = small_card
+    sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
+    at_eps = {a: sweep["1.0"] for a, sweep in sensory["attacks"].items()}
+    worst = min(at_eps, key=lambda a: at_eps[a]["mean_return"])
+    clean = np.array([e["return"] for e in sensory["clean"]["episodes"]])
+    diff = clean - np.array([e["return"] for e in at_eps[worst]["episodes"]])
+    half = t95(2) * diff.std(ddof=1) / math.sqrt(3)
+    base = abs(clean.mean())
+    assert sensory["worst"]["attack"] == worst
+    assert sensory["worst"]["drop_pct"] == pytest.approx(-100 * diff.mean() / base)
+    assert sensory["worst"]["ci95_pct"] == pytest.approx([-100 * (diff.mean() + half) / base,
+                                                          -100 * (diff.mean() - half) / base])
+    text = page.read_text()
+    assert f"{sensory['worst']['drop_pct']:+.1f}%" in text and "![return against eps, sensory](sweep-sensory.png)" in text
+    assert (out / "sweep-sensory.png").stat().st_size > 10_000 and (out / "adversary-sensory.pt").is_file()
+
+
+def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card):
+    cfg, out, _, lines = small_card
+    assert any("training ARIL-A against" in line for line in lines)
+    again = []
+    scorecard(cfg, log=lambda line, **_: again.append(line))
+    assert any("reusing" in line for line in again) and not any("training ARIL-A" in line for line in again)
+    assert sum("cell " in line for line in again) == 1 + len(SCORED_ATTACKS) * len(SCALES)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"budget": "huge"}, "unknown budget 'huge'; choose one of quick, full"),
+    ({"modes": "clean"}, "unknown mode 'clean'"),
+    ({"policy": "external"}, "policy:=external .* run_graph.py policy:=external"),
+    ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
+])
+def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, message):
+    with pytest.raises(ValueError, match=message):
+        scorecard(ScorecardConfig(out=str(tmp_path / "card"), **changes), log=lambda *a, **k: None)
+    assert not (tmp_path / "card").exists()
