@@ -111,6 +111,9 @@ NODE_POLL = 0.05
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop a run in order (nodes stopped, log closed as interrupted)."""
 
+EXTERNAL_HINT_EVERY = 5.0
+"""Seconds between two reminders, while an external policy node is awaited, of what is missing and how to join."""
+
 SAFE_DOMAINS = (*range(102), *range(215, 233))
 """ROS domain ids whose DDS ports (7400 + 250 * id and up) keep clear of Linux's ephemeral ports
 (32768-60999), as the ROS 2 docs list them; Fast-DDS refuses any id above 232 outright."""
@@ -324,9 +327,12 @@ class Orchestrator:
 
     def wait_connected(self, ros) -> None:
         """Until every started node has announced that its endpoints are matched (graph/ready), the
-        recorder hears every step topic, and the reset service answers."""
+        recorder hears every step topic, and the reset service answers. While an external policy node is
+        awaited, says every :data:`EXTERNAL_HINT_EVERY` seconds what of it is missing and how to join the run."""
         deadline = time.monotonic() + self.cfg.connect_timeout
+        next_hint = time.monotonic() + EXTERNAL_HINT_EVERY
         expected = {node.name for node in self.nodes}
+        external = self.cfg.policy == "external"
         while True:
             self.check_nodes()
             missing = [f"node '{name}' not ready" for name in sorted(expected - ros.ready)]
@@ -334,13 +340,68 @@ class Orchestrator:
             if not ros.reset_client.service_is_ready():
                 missing.append(f"service {ros.node.resolve_topic_name(P.RESET_SERVICE)}")
             if not missing:
-                ros.admit(self.own_nodes(), external_policy=self.cfg.policy == "external")
+                ros.admit(self.own_nodes(), external_policy=external)
                 return
-            if time.monotonic() > deadline:
-                who = "an external policy node" if self.cfg.policy == "external" else "the graph"
-                raise GraphError(f"{who} did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
-                                 + ", ".join(missing) + f" (node logs: {self.log_dir})")
+            now = time.monotonic()
+            if now > deadline:
+                endpoints = self.external_endpoints(ros) if external else {}
+                absent = [what for what, shown in endpoints.items() if not shown]
+                if absent:
+                    raise GraphError(f"an external policy node did not connect within {self.cfg.connect_timeout:.0f} "
+                                     f"s: no node but the run's own has {' or '.join(absent)} in ROS domain "
+                                     f"{os.environ['ROS_DOMAIN_ID']}{self.silent_policy_text(endpoints)}; start it "
+                                     f"with {self.join_text()}"
+                                     + ("; to start it before the run, pin the run's domain: domain:=N"
+                                        if self.cfg.domain == "auto" else "") + self.unmatched_policy_text(ros)
+                                     + "; also missing: " + ", ".join(missing) + f" (node logs: {self.log_dir})")
+                raise GraphError(f"the graph did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
+                                 + ", ".join(missing) + self.unmatched_policy_text(ros)
+                                 + f" (node logs: {self.log_dir})")
+            if external and now >= next_hint:
+                next_hint = now + EXTERNAL_HINT_EVERY
+                endpoints = self.external_endpoints(ros)
+                absent = [what for what, shown in endpoints.items() if not shown]
+                if absent:  # a node that publishes but does not subscribe yet may be waiting for its listeners
+                    silent = self.silent_policy_text(endpoints)
+                    self.log(f"[run_graph] waiting for the external policy node ({deadline - now:.0f} s left): "
+                             f"{' and '.join(absent)}" + (silent or f"; start it with {self.join_text()}"),
+                             file=sys.stderr, flush=True)
             ros.spin(0.05)
+
+    def external_endpoints(self, ros) -> dict[str, bool]:
+        """Whether a node this run did not start shows a subscription on observation, and a publisher on action."""
+        own, node = self.own_nodes(), ros.node
+        observation, action = (node.resolve_topic_name(t) for t in (P.OBSERVATION, P.ACTION))
+        return {f"a subscriber on {observation}": any(info.node_name not in own for info in
+                                                      node.get_subscriptions_info_by_topic(observation)),
+                f"a publisher on {action}": any(info.node_name not in own for info in
+                                                node.get_publishers_info_by_topic(action))}
+
+    def silent_policy_text(self, endpoints: dict[str, bool]) -> str:
+        """Why a node that publishes on action has no subscription on observation, if that is so."""
+        subscribed, publishing = endpoints.values()
+        if subscribed or not publishing:
+            return ""
+        return (f" (a node publishes on {P.ACTION}: if it subscribes once action has enough subscribers, it must "
+                f"wait for {self.action_listeners}, not more)")
+
+    def unmatched_policy_text(self, ros) -> str:
+        """Why an external policy's publisher on action, in the graph, is not matched with the recorder: its QoS."""
+        if self.cfg.policy != "external" or P.ACTION not in ros.unfed_topics():
+            return ""
+        from rclpy.qos import ReliabilityPolicy
+
+        action = ros.node.resolve_topic_name(P.ACTION)
+        best_effort = [info.node_name for info in ros.node.get_publishers_info_by_topic(action)
+                       if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT]
+        return (f"; the publisher of node '{best_effort[0]}' on {action} is best effort, which no reliable subscription "
+                "matches: step topics are reliable" if best_effort else "")
+
+    def join_text(self) -> str:
+        """The environment a node needs to join this run (the run sets both variables in its own process)."""
+        return (f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} "
+                f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']} <your node's command>, "
+                f"answering once action has {self.action_listeners} subscribers")
 
     def own_nodes(self) -> set[str]:
         """The names of the nodes this run started, its own and (with a query attack) the attacker's probe client."""
@@ -421,8 +482,10 @@ class Orchestrator:
             if recorder.steps_written != progress:
                 last_progress, progress = time.monotonic(), recorder.steps_written
             elif time.monotonic() - last_progress > self.cfg.step_timeout:
+                cause = recorder.stray_text()
                 raise GraphError(f"step {recorder.waiting_for()} made no progress for {self.cfg.step_timeout:.0f} s: "
-                                 f"{recorder.missing_text()}" + (" (is the external policy still running?)"
+                                 f"{recorder.missing_text()}" + (f"; {cause}" if cause else
+                                                                 " (is the external policy still running?)"
                                                                  if self.cfg.policy == "external" else ""))
         self.log(recorder.episode_stats[-1].line(), file=sys.stderr, flush=True)
 
@@ -472,7 +535,6 @@ class StepRecorder:
     def __init__(self, writer: RunLogWriter | None):
         self.writer = writer
         self.pending: dict[StepTag, dict[str, bytes]] = {}
-        self.order: list[StepTag] = []
         self.clock: dict[int, bytes] = {}
         self.stamp: dict[StepTag, int] = {}
         self.episode_stats: list[EpisodeStats] = []  # the finished episodes
@@ -527,10 +589,7 @@ class StepRecorder:
                 if topic in self.pending.get(tag, {}):
                     self.repeated(tag, topic, raw, digest(self.pending[tag][topic]), "has one already")
                     return
-                if tag not in self.pending:
-                    self.pending[tag] = {}
-                    self.order.append(tag)
-                self.pending[tag][topic] = raw
+                self.pending.setdefault(tag, {})[topic] = raw
                 if topic == P.STATE:
                     self.stamp[tag] = stamp
         self.flush()
@@ -558,8 +617,9 @@ class StepRecorder:
         return not missing_topics(self.arrived(tag)) and not self.half_heard(tag)
 
     def flush(self) -> None:
-        while self.order and self.complete(self.order[0]):
-            tag = self.order.pop(0)
+        # the step to write is the waiting one, not the first heard: a stray action's tag (a policy that does not
+        # copy the observation's header) must not hold up the steps after it
+        while (tag := self.waiting_for()) in self.pending and self.complete(tag):
             msgs = self.pending.pop(tag)
             stamp = self.stamp.pop(tag)
             msgs[P.CLOCK] = self.clock.pop(stamp)
@@ -583,24 +643,44 @@ class StepRecorder:
                 self.episode_stats.append(self.current)
                 self.episode_done = True
 
-    def waiting_for(self) -> str:
-        return str(self.order[0]) if self.order else f"{self.episode}/{self.current.steps}"
+    def waiting_for(self) -> StepTag:
+        """The step to be written next: steps are written in order, from 0 in each episode."""
+        return StepTag(self.episode, self.current.steps)
 
     def missing_text(self) -> str:
-        if not self.order:
+        tag = self.waiting_for()
+        if tag not in self.pending:
             return f"no {P.STATE} from the simulator"
-        missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(self.order[0]))]
-        half_heard = self.half_heard(self.order[0])
+        missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(tag))]
+        half_heard = self.half_heard(tag)
         if half_heard:
             missing.append(f"{half_heard} probes' observation or answer (attacker, policy)")
         return "waiting for " + ", ".join(missing)
+
+    def stray_text(self) -> str:
+        """Why the waiting step's action never came, if actions for other steps did; else ``""``."""
+        tag, strays = self.waiting_for(), self.stray_actions()
+        if not strays or P.ACTION in self.pending.get(tag, {}):
+            return ""
+        shown = ", ".join(map(str, strays[:3])) + (f" and {len(strays) - 3} more" if len(strays) > 3 else "")
+        return (f"actions arrived tagged {shown} while step {tag} was waiting: the policy must answer with the "
+                "observation's header (its frame_id, the step tag, is what the simulator steps on)")
+
+    def stray_actions(self) -> list[StepTag]:
+        """Tags of the actions heard for a step other than the one waiting, which no step can use: in lockstep the
+        simulator publishes no step before its predecessor's action, so these come from a policy that tags its
+        answers with something else than the observation's frame_id."""
+        waiting = self.waiting_for()
+        return sorted(tag for tag, msgs in self.pending.items() if tag != waiting and P.ACTION in msgs)
 
 
 def step_tag_of(topic: str, frame_id: str) -> StepTag:
     try:
         return StepTag.parse(frame_id)
     except ValueError as err:
-        raise StepFault(f"a message on {topic} with a malformed frame_id: {err}") from None
+        raise StepFault(f"a message on {topic} with a malformed frame_id: {err}"
+                        + (" (a policy must answer with the observation's header)" if topic == P.ACTION else "")
+                        ) from None
 
 
 def digest(raw: bytes) -> bytes:
