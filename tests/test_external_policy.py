@@ -1,0 +1,144 @@
+"""The contract for a user's policy node (msgs_doc/README.md, "Write your own policy node"): the documented node runs
+as a run's policy, the doc's env table is what the envs say, and each way a node can fail is named on run_graph's
+stderr."""
+from __future__ import annotations
+
+import importlib.util
+import re
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from aril_ros.envs import MujocoSim, layout_of
+from aril_ros.mcap_log import read_run
+from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, ros_env, run_graph
+
+README = ROOT / "msgs_doc" / "README.md"
+
+
+def documented_node() -> str:
+    """The code block of the README's "Write your own policy node" section, as a user copies it."""
+    section = README.read_text().split("\n## Write your own policy node\n", 1)[1].split("\n## ", 1)[0]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def start_node(code: str, domain: int, tmp_path, *ros_args: str, name: str = "my_policy.py"):
+    path = tmp_path / name
+    path.write_text(code)
+    return subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args], env=ros_env(domain),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def stop(node) -> None:
+    node.send_signal(signal.SIGINT)
+    try:
+        node.wait(10)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        node.wait()
+
+
+@pytest.mark.parametrize("mode, env_id, attack, listeners", [("sensory", "HalfCheetah-v5", "random", 2),
+                                                             ("physical", "Swimmer-v5", "spsa", 3)])
+def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, listeners, tmp_path):
+    """Started first, in the domain the run is pinned to, as the doc says; the run completes with the node's actions."""
+    from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
+
+    _, expert = policy_files(tmp_path, env_id)
+    domain = free_domain()
+    act_dim = layout_of(env_id).act_dim
+    node = start_node(documented_node(), domain, tmp_path, "-p", f"act_dim:={act_dim}", "-p", f"listeners:={listeners}")
+    try:
+        cfg = GraphConfig(mode=mode, env=env_id, attack=attack, eps=0.1, k=2, policy="external", expert=str(expert),
+                          episodes=1, horizon=30, record=str(tmp_path / "run.mcap"), domain=str(domain))
+        summary = Orchestrator(cfg, log=lambda *a, **k: None).run()
+    finally:
+        stop(node)
+    assert node.returncode == 0  # a SIGINT is a clean stop for it
+    assert processes_in_domain(domain) == []
+    run = read_run(tmp_path / "run.mcap")
+    assert summary["steps"] == len(run.tags) == 30
+    np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :act_dim]))  # the node's answers, as sent
+    assert (summary["queries_per_step"] > 0) == (attack == "spsa")
+
+
+def test_the_env_table_in_the_doc_is_the_generated_one():
+    spec = importlib.util.spec_from_file_location("env_table", ROOT / "msgs_doc" / "env_table.py")
+    env_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(env_table)
+    assert env_table.table_in(README.read_text()) == env_table.env_table(), \
+        "msgs_doc/README.md's env table is stale: python msgs_doc/env_table.py --write"
+
+
+@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Ant-v5", "Swimmer-v5", "Hopper-v5", "Walker2d-v5"])
+def test_out_of_range_actions_move_as_clipped_but_cost_as_sent(env_id):
+    """What the doc says of an action beyond the bounds: the simulator's step (MujocoSim.step, the simulator node's)
+    moves the body as with the clipped action, and charges gymnasium's control cost on the action as sent."""
+    sim = MujocoSim(env_id)
+    layout = sim.layout
+    sim.reset(3)
+    start = sim.get_state()
+    action = np.random.default_rng(0).uniform(-3, 3, layout.act_dim)
+    clipped = np.clip(action, layout.action_low, layout.action_high)
+    assert not np.array_equal(action, clipped)
+    outcomes = []
+    for sent in (action, clipped):
+        sim.set_state(start)
+        obs, reward, _, _ = sim.step(sent)
+        outcomes.append((obs, sim.qpos.copy(), sim.qvel.copy(), reward))
+    (obs, qpos, qvel, reward), (obs_c, qpos_c, qvel_c, reward_c) = outcomes
+    sim.close()
+    np.testing.assert_array_equal(obs, obs_c)
+    np.testing.assert_array_equal(qpos, qpos_c)
+    np.testing.assert_array_equal(qvel, qvel_c)
+    weight = sim.gym_env._ctrl_cost_weight
+    assert reward_c - reward == pytest.approx(weight * (np.sum(action ** 2) - np.sum(clipped ** 2)), rel=1e-9)
+
+
+@pytest.mark.parametrize("attack", ["fgsm", "fgsm_k"])
+def test_a_white_box_attack_on_an_external_policy_is_refused_naming_the_black_box_ones(attack):
+    from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
+
+    with pytest.raises(GraphError, match=f"attack:={attack} is white-box.*black-box one: random, spsa, aril_a$"):
+        Orchestrator(GraphConfig(attack=attack, policy="external", record="off"))
+
+
+def test_a_node_that_tags_its_answers_wrong_is_named(tmp_path):
+    """It answers step <e>/<s> with the tag <e>/<s+1>: the run says so, not only the simulator's log."""
+    wrong_tag = documented_node().replace(
+        "        self.publisher_.publish(JointState(header=obs.header,",
+        "        episode, step = obs.header.frame_id.split('/')[:2]\n"
+        "        obs.header.frame_id = f'{episode}/{int(step) + 1}'\n"
+        "        self.publisher_.publish(JointState(header=obs.header,")
+    assert wrong_tag != documented_node()
+    _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    domain = free_domain()
+    node = start_node(wrong_tag, domain, tmp_path)
+    try:
+        out = run_graph("policy:=external", f"expert:={expert}", "episodes:=1", "horizon:=20", "record:=off",
+                        "step_timeout:=3", domain=domain, besides=[node.pid])
+    finally:
+        stop(node)
+    assert out.returncode == 1
+    assert re.search(r"step 0/0 made no progress for 3 s: waiting for action \(policy\).*; actions arrived tagged 0/1 "
+                     r"while step 0/0 was waiting: the policy must answer with the observation's header",
+                     out.stderr), out.stderr
+    assert "still running" not in out.stderr
+
+
+def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
+    _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    domain = free_domain()
+    out = run_graph("policy:=external", f"expert:={expert}", "connect_timeout:=6", "record:=off", domain=domain)
+    assert out.returncode == 1
+    join = f"ROS_DOMAIN_ID={domain} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST <your node's command>, answering once " \
+           "action has 2 subscribers"
+    reminder = re.escape("[run_graph] waiting for the external policy node (") + r"\d s left\): " + re.escape(
+        f"a subscriber on /observation and a publisher on /action; start it with {join}")
+    assert len(re.findall(reminder, out.stderr)) == 1, out.stderr  # every 5 s
+    assert f"run_graph: error: an external policy node did not connect within 6 s: no node but the run's own has a " \
+           f"subscriber on /observation or a publisher on /action in ROS domain {domain}; start it with {join}; " \
+           in out.stderr, out.stderr
