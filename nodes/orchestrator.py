@@ -345,60 +345,60 @@ class Orchestrator:
             now = time.monotonic()
             if now > deadline:
                 endpoints = self.external_endpoints(ros) if external else {}
-                absent = [what for what, shown in endpoints.items() if not shown]
+                absent = [what for what, nodes in endpoints.items() if not nodes]
                 if absent:
                     raise GraphError(f"an external policy node did not connect within {self.cfg.connect_timeout:.0f} "
                                      f"s: no node but the run's own has {' or '.join(absent)} in ROS domain "
-                                     f"{os.environ['ROS_DOMAIN_ID']}{self.silent_policy_text(endpoints)}; start it "
-                                     f"with {self.join_text()}"
-                                     + ("; to start it before the run, pin the run's domain: domain:=N"
-                                        if self.cfg.domain == "auto" else "") + self.unmatched_policy_text(ros)
-                                     + "; also missing: " + ", ".join(missing) + f" (node logs: {self.log_dir})")
+                                     f"{os.environ['ROS_DOMAIN_ID']}; {self.external_advice(ros, endpoints)}; also "
+                                     f"missing: " + ", ".join(missing) + f" (node logs: {self.log_dir})")
+                best_effort = self.best_effort_policy(ros) if external else None
                 raise GraphError(f"the graph did not connect within {self.cfg.connect_timeout:.0f} s; missing: "
-                                 + ", ".join(missing) + self.unmatched_policy_text(ros)
+                                 + ", ".join(missing) + (f"; {best_effort}" if best_effort else "")
                                  + f" (node logs: {self.log_dir})")
             if external and now >= next_hint:
                 next_hint = now + EXTERNAL_HINT_EVERY
                 endpoints = self.external_endpoints(ros)
-                absent = [what for what, shown in endpoints.items() if not shown]
-                if absent:  # a node that publishes but does not subscribe yet may be waiting for its listeners
-                    silent = self.silent_policy_text(endpoints)
+                absent = [what for what, nodes in endpoints.items() if not nodes]
+                if absent:
                     self.log(f"[run_graph] waiting for the external policy node ({deadline - now:.0f} s left): "
-                             f"{' and '.join(absent)}" + (silent or f"; start it with {self.join_text()}"),
-                             file=sys.stderr, flush=True)
+                             f"{' and '.join(absent)}; {self.external_advice(ros, endpoints)}", file=sys.stderr,
+                             flush=True)
             ros.spin(0.05)
 
-    def external_endpoints(self, ros) -> dict[str, bool]:
-        """Whether a node this run did not start shows a subscription on observation, and a publisher on action."""
+    def external_endpoints(self, ros) -> dict[str, list[str]]:
+        """The nodes this run did not start that show a subscription on observation, and a publisher on action."""
         own, node = self.own_nodes(), ros.node
         observation, action = (node.resolve_topic_name(t) for t in (P.OBSERVATION, P.ACTION))
-        return {f"a subscriber on {observation}": any(info.node_name not in own for info in
-                                                      node.get_subscriptions_info_by_topic(observation)),
-                f"a publisher on {action}": any(info.node_name not in own for info in
-                                                node.get_publishers_info_by_topic(action))}
+        return {f"a subscriber on {observation}": [info.node_name for info in
+                                                   node.get_subscriptions_info_by_topic(observation)
+                                                   if info.node_name not in own],
+                f"a publisher on {action}": [info.node_name for info in node.get_publishers_info_by_topic(action)
+                                             if info.node_name not in own]}
 
-    def silent_policy_text(self, endpoints: dict[str, bool]) -> str:
-        """Why a node that publishes on action has no subscription on observation, if that is so."""
-        subscribed, publishing = endpoints.values()
-        if subscribed or not publishing:
-            return ""
-        return (f" (a node publishes on {P.ACTION}: if it subscribes once action has enough subscribers, it must "
-                f"wait for {self.action_listeners}, not more)")
+    def external_advice(self, ros, endpoints: dict[str, list[str]]) -> str:
+        """What to do about an external policy node that shows only part of its endpoints (``endpoints``)."""
+        _, publishers = endpoints.values()
+        if not publishers:  # no node of the user's, or one that does not publish: how to start one in this run
+            return f"start it with {self.join_text()}" + ("; to start it before the run, pin the run's domain: "
+                                                          "domain:=N" if self.cfg.domain == "auto" else "")
+        return self.best_effort_policy(ros) or (
+            f"node '{publishers[0]}' publishes on {ros.node.resolve_topic_name(P.ACTION)} but has not subscribed to "
+            f"{ros.node.resolve_topic_name(P.OBSERVATION)}: a node that waits for subscribers on action first must "
+            f"wait for {self.action_listeners}, not more")
 
-    def unmatched_policy_text(self, ros) -> str:
-        """Why an external policy's publisher on action, in the graph, is not matched with the recorder: its QoS."""
-        if self.cfg.policy != "external" or P.ACTION not in ros.unfed_topics():
-            return ""
+    def best_effort_policy(self, ros) -> str | None:
+        """Why a node's publisher on action is in the graph but matched by none of the run's subscriptions: it is
+        best effort, which no reliable subscription matches."""
         from rclpy.qos import ReliabilityPolicy
 
         action = ros.node.resolve_topic_name(P.ACTION)
         best_effort = [info.node_name for info in ros.node.get_publishers_info_by_topic(action)
                        if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT]
-        return (f"; the publisher of node '{best_effort[0]}' on {action} is best effort, which no reliable subscription "
-                "matches: step topics are reliable" if best_effort else "")
+        return (f"node '{best_effort[0]}' publishes on {action} best effort, which no reliable subscription matches: "
+                "step topics are reliable" if best_effort else None)
 
     def join_text(self) -> str:
-        """The environment a node needs to join this run (the run sets both variables in its own process)."""
+        """The environment a node needs to join this run (run() has set both variables in this process)."""
         return (f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} "
                 f"ROS_AUTOMATIC_DISCOVERY_RANGE={os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']} <your node's command>, "
                 f"answering once action has {self.action_listeners} subscribers")

@@ -25,8 +25,9 @@ def documented_node() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
-def start_node(code: str, domain: int, tmp_path, *ros_args: str, name: str = "my_policy.py"):
-    path = tmp_path / name
+def start_node(code: str, domain: int, tmp_path, *ros_args: str):
+    """``code`` as the user runs it: a file of its own, in the run's domain."""
+    path = tmp_path / "my_policy.py"
     path.write_text(code)
     return subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args], env=ros_env(domain),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -142,3 +143,29 @@ def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
     assert f"run_graph: error: an external policy node did not connect within 6 s: no node but the run's own has a " \
            f"subscriber on /observation or a publisher on /action in ROS domain {domain}; start it with {join}; " \
            in out.stderr, out.stderr
+
+
+@pytest.mark.parametrize("ros_args, reliability, cause", [
+    (("-p", "listeners:=3"), "RELIABLE", "node 'my_policy' publishes on /action but has not subscribed to /observation: "
+                                         "a node that waits for subscribers on action first must wait for 2, not more"),
+    ((), "BEST_EFFORT", "node 'my_policy' publishes on /action best effort, which no reliable subscription matches"),
+], ids=["too many listeners", "best effort"])
+def test_a_node_that_never_subscribes_is_told_why(ros_args, reliability, cause, tmp_path):
+    """The documented node waiting for more listeners than the run has, or publishing best effort."""
+    from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
+
+    _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    domain = free_domain()
+    code = documented_node()
+    assert "ReliabilityPolicy.RELIABLE" in code
+    node = start_node(code.replace("ReliabilityPolicy.RELIABLE", f"ReliabilityPolicy.{reliability}"), domain,
+                      tmp_path, *ros_args)
+    message = (f"an external policy node did not connect within 8 s: no node but the run's own has a subscriber on "
+               f"/observation in ROS domain {domain}; {cause}")
+    try:  # in this process, as aril train-learner source:=graph runs it: the same error run_graph prints
+        with pytest.raises(GraphError, match=re.escape(message)):
+            Orchestrator(GraphConfig(policy="external", expert=str(expert), connect_timeout=8, record="off",
+                                     domain=str(domain)), log=lambda *a, **k: None).run()
+    finally:
+        stop(node)
+    assert processes_in_domain(domain) == []
