@@ -25,6 +25,7 @@ from .experts import ExpertConfig, train_expert
 from .gail import GailConfig, train_gail
 from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
+from .onboard import OnboardConfig, onboard
 from .policy import PolicyFileError
 from .render import RenderConfig, RenderError, render
 from .report import ReportConfig, build_report
@@ -84,6 +85,8 @@ COMMANDS = {
                              "strongest attack against it; writes results/."),
     "report": Command(ReportConfig, build_report,
                       "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
+    "onboard": Command(OnboardConfig, onboard, "A new robot in one command: expert, DAgger learner and eps for a MuJoCo "
+                       "env, resumable, into the user data folder ($ARIL_DATA)."),
     "scorecard": Command(ScorecardConfig, scorecard, "How robust is a policy: clean vs every attack on the same "
                          "episodes, paired drops, eps sweeps, the worst case; one page with figures."),
     "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),

@@ -32,7 +32,6 @@ from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_
                        bundled_file, calibrated_eps, user_calibration)
 from .report.stats import summarise, worst_attack
 
-CALIBRATION_MARKDOWN = "results/eps_calibration.md"
 """Where ``aril calibrate-eps`` writes its table by default (its JSON: the bundled calibration)."""
 SEARCH_ROW = "aril_a_search"
 """ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
@@ -86,16 +85,16 @@ class CalibrationConfig:
     episodes: int = arg(10, "deterministic episodes per cell")
     seed: int = arg(seeds.CALIBRATION, "env seed of the first episode")
     horizon: int = arg(HORIZON, "steps per episode")
-    out: str = arg("", "output path without suffix (.json and .md are written); unset: the user's calibration "
-                       "(eps_calibration.json in the user data folder, $ARIL_DATA, which eps:=0 reads where the "
-                       f"bundled one has no row) and {CALIBRATION_MARKDOWN}")
+    out: str = arg("", "output path without suffix (.json and .md are written); unset: the user's calibration, "
+                       "eps_calibration.{json,md} in the user data folder ($ARIL_DATA), which eps:=0 reads where "
+                       "the bundled one has no row")
 
 
 def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
     """Sweep the grid for each env and mode; rows of other envs/modes already in the output (same
     victim and rule) are kept, each with the command that made it."""
     made = stamp("aril calibrate-eps", cfg)
-    json_path, md_path = _outputs(cfg.out, "") if cfg.out else (user_calibration(), Path(CALIBRATION_MARKDOWN))
+    json_path, md_path = _outputs(str(cfg.out or user_calibration().with_suffix("")), "")
     fresh = []
     grid = sorted(float(e) for e in comma_list(cfg.grid))
     for env in comma_list(cfg.envs):
@@ -116,14 +115,22 @@ def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
                 if s["drop"] > cfg.max_drop:
                     break
                 allowed.append(s["eps"])
-            fresh.append({"env": env, "mode": mode, "clean": clean, "sweep": sweep,
+            fresh.append({"env": env, "mode": mode, "victim": cfg.policy, "clean": clean, "sweep": sweep,
                           "chosen_eps": allowed[-1] if allowed else grid[0],
                           "rule": f"largest eps before FGSM first drops the return by more than {cfg.max_drop:.0%}"
                           if allowed else "even the smallest eps broke the rule: the smallest tried",
                           "episodes": cfg.episodes, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}", **made})
-    rows = _merge(json_path, lambda r: (r["env"], r["mode"]), fresh,
-                  lambda old: old.get("victim") == cfg.policy and old.get("max_drop") == cfg.max_drop)
-    payload = {"victim": cfg.policy, "expert": cfg.expert, "max_drop": cfg.max_drop, "rows": rows}
+    # each row names its victim: a file holds envs calibrated against learners of their own (a user's), but an
+    # env's modes are calibrated against one learner, so another victim for an env starts that env anew
+    rows = _merge(json_path, lambda r: (r["env"], r["mode"]), fresh, lambda old: old.get("max_drop") == cfg.max_drop)
+    for row in rows:
+        if "victim" not in row:  # written before rows named theirs: the file's one
+            row["victim"] = json.loads(json_path.read_text())["victim"]
+    envs_now = {row["env"] for row in fresh}
+    rows = [row for row in rows if row["env"] not in envs_now or row["victim"] == cfg.policy]
+    victims = sorted({row["victim"] for row in rows})
+    payload = {"victim": victims[0] if len(victims) == 1 else "per row", "expert": cfg.expert,
+               "max_drop": cfg.max_drop, "rows": rows}
     _write(json_path, payload, md_path, calibration_markdown(payload))
     return payload
 
@@ -133,11 +140,11 @@ def calibration_markdown(payload: dict) -> str:
              f"FGSM return per eps (mean over deterministic episodes, drop from clean); chosen: the largest eps "
              f"before FGSM first costs more than {payload['max_drop']:.0%} of the clean return. Each row's command "
              "is in the JSON.", "",
-             "| env | mode | clean | FGSM return per eps | chosen eps | episodes (seeds) |",
-             "|---|---|---|---|---|---|"]
+             "| env | mode | victim | clean | FGSM return per eps | chosen eps | episodes (seeds) |",
+             "|---|---|---|---|---|---|---|"]
     for r in payload["rows"]:
         cells = ", ".join(f"{s['eps']:g}: {s['mean']:.0f} ({-100 * s['drop']:+.0f}%)" for s in r["sweep"])
-        lines.append(f"| {r['env']} | {r['mode']} | {r['clean']:.0f} | {cells} | **{r['chosen_eps']:g}** | "
+        lines.append(f"| {r['env']} | {r['mode']} | {r['victim']} | {r['clean']:.0f} | {cells} | **{r['chosen_eps']:g}** | "
                      f"{r['episodes']} ({r['seeds']}) |")
     return "\n".join(lines) + "\n"
 

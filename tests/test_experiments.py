@@ -42,10 +42,16 @@ def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
     payload = calibrate_eps(CalibrationConfig(modes="physical", **common), **QUIET)
     assert [(r["env"], r["mode"]) for r in payload["rows"]] == [("Swimmer-v5", "physical"), ("Swimmer-v5", "sensory")]
     assert "modes:=sensory" in payload["rows"][1]["command"]
-    # another victim starts a new table instead of mixing two victims' rows
+    # another victim for an env starts that env anew instead of mixing two victims' rows in one env
     other = save_policy(make_policy("Swimmer-v5", seed=3), tmp_path / "other.pt")
     payload = calibrate_eps(CalibrationConfig(modes="sensory", **{**common, "policy": str(other)}), **QUIET)
-    assert len(payload["rows"]) == 1
+    assert [(r["env"], r["mode"], r["victim"]) for r in payload["rows"]] == [("Swimmer-v5", "sensory", str(other))]
+    # another env, calibrated against a learner of its own, joins the file beside it (a user's onboarded envs)
+    hopper = save_policy(make_policy("Hopper-v5", seed=4), tmp_path / "hopper.pt")
+    payload = calibrate_eps(CalibrationConfig(modes="sensory", **{**common, "envs": "Hopper-v5", "policy": str(hopper),
+                                                                  "expert": str(hopper)}), **QUIET)
+    assert [(r["env"], r["victim"]) for r in payload["rows"]] == [("Swimmer-v5", str(other)), ("Hopper-v5", str(hopper))]
+    assert payload["victim"] == "per row" and f"| Hopper-v5 | sensory | {hopper} |" in (tmp_path / "cal.md").read_text()
 
 
 def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path, make_policy, monkeypatch):
