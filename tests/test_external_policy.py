@@ -22,7 +22,7 @@ README = ROOT / "msgs_doc" / "README.md"
 def documented_node() -> str:
     """The code block of the README's "Write your own policy node" section, as a user copies it."""
     section = README.read_text().split("\n## Write your own policy node\n", 1)[1].split("\n## ", 1)[0]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    return re.search(r"```python\n(.*?)```", section, re.DOTALL).group(1)
 
 
 def start_node(code: str, domain: int, tmp_path, *ros_args: str):
@@ -146,8 +146,9 @@ def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
 
 
 @pytest.mark.parametrize("ros_args, reliability, cause", [
-    (("-p", "listeners:=3"), "RELIABLE", "node 'my_policy' publishes on /action but has not subscribed to /observation: "
-                                         "a node that waits for subscribers on action first must wait for 2, not more"),
+    (("-p", "listeners:=3"), "RELIABLE", ("node 'my_policy' publishes on /action but has not subscribed to "
+                                          "/observation: a node that waits for subscribers on action first must wait "
+                                          "for 2, not more")),
     ((), "BEST_EFFORT", "node 'my_policy' publishes on /action best effort, which no reliable subscription matches"),
 ], ids=["too many listeners", "best effort"])
 def test_a_node_that_never_subscribes_is_told_why(ros_args, reliability, cause, tmp_path):
