@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,7 +38,8 @@ from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate
 from .policy import resolve_policy
 from .provenance import stamp
-from .registry import ATTACKED_MODES, ATTACKS, BUNDLED_NAMES, DEFAULT_ENV, bundled_file, calibrated_eps, check_name
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, bundled_file, calibrated_eps,
+                       check_name)
 from .report.stats import t95
 
 
@@ -116,7 +118,7 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str]]:
 def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
     """ARIL-A trained against the policy in ``mode`` at ``eps``: the one at ``path`` when it was trained for the
     same policy file, eps and steps, else trained now (the longest part of a scorecard)."""
-    victim = str(bundled_file(cfg.policy, cfg.env, mode)) if cfg.policy in BUNDLED_NAMES else cfg.policy
+    victim = victim_of(cfg.policy, cfg.env, mode)
     if path.exists():
         adversary = load_adversary(path)
         made = adversary.meta.get("provenance", {})
@@ -127,6 +129,15 @@ def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget,
         "the longest part")
     return train_adversary(AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
                                            steps=budget.adversary_steps, out=str(path)), log=log)
+
+
+def victim_of(policy: str, env_id: str, mode: str) -> str:
+    """What the adversary trainer is told to attack (and its file records): the policy as typed, except a bundled
+    name trained per mode, which the trainer could not resolve alone: its file, relative to here when it can be."""
+    if policy not in PER_MODE_POLICIES:
+        return policy
+    path = bundled_file(policy, env_id, mode)
+    return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
 
 
 def run_cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: Path | None,

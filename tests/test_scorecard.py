@@ -74,3 +74,16 @@ def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, messa
     with pytest.raises(ValueError, match=message):
         scorecard(ScorecardConfig(out=str(tmp_path / "card"), **changes), log=lambda *a, **k: None)
     assert not (tmp_path / "card").exists()
+
+
+def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_name(monkeypatch, tmp_path):
+    from aril_ros.registry import bundled_file
+    from aril_ros.scorecard import victim_of
+
+    assert victim_of("dagger", "Swimmer-v5", "sensory") == "dagger"
+    assert victim_of("runs/mine.pt", "Swimmer-v5", "sensory") == "runs/mine.pt"
+    package = bundled_file("aril", "Swimmer-v5", "physical")
+    monkeypatch.chdir(package.parents[3])  # where the package is: the recorded path is relative to here
+    assert victim_of("aril", "Swimmer-v5", "physical") == "aril_ros/data/aril/Swimmer-v5-physical.pt"
+    monkeypatch.chdir(tmp_path)
+    assert victim_of("aril", "Swimmer-v5", "physical") == str(package)
