@@ -38,7 +38,7 @@ from .adversary import AdversaryConfig, train_adversary
 from .args import arg
 from .attacks import make_attack
 from .dataset import DaggerDataset
-from .envs import layout_of
+from .envs import HORIZON, layout_of
 from .learners import fit_policy
 from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, resolve_policy, save_policy
@@ -103,6 +103,12 @@ class RoundSpec:
     """env seed of the first episode (and of the attack noise)"""
     record: Path
     """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.mcap_log`)"""
+    horizon: int = HORIZON
+    """steps per episode"""
+    domain: str = "auto"
+    """the ROS domain of the run (a number when a node started apart, an external policy, must join it)"""
+    rescale: bool = False
+    """aril_a at an eps other than its file's: its perturbation scaled to eps"""
 
 
 class NoisyPolicy:

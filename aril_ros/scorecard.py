@@ -2,20 +2,32 @@
 
     aril scorecard policy:=runs/my-policy.pt env:=HalfCheetah-v5 modes:=sensory,physical budget:=quick
 
-For each attacked mode, on the in-process engine: the clean return and every attack's return on the same env
+For each attacked mode: the clean return and every attack's return on the same env
 seeds (paired: episode ``i`` resets with seed ``seed + i`` in every cell), the drop from clean with a paired
 Student-t 95% interval, an eps sweep (0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the
 expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, SPSA^k
 (zeroth order: it queries the policy's actions) and ARIL-A trained against *this* policy within the budget;
-and, since the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
+and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
 calibrated one for the env and mode unless ``eps:=`` sets it.
+
+A policy file or a bundled name is scored on the in-process engine. ``policy:=external`` scores a ROS 2 policy
+node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
+your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
+Start the node in a domain of your choosing and name it::
+
+    ROS_DOMAIN_ID=42 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python my_policy.py --ros-args -p act_dim:=6 &
+    aril scorecard policy:=external domain:=42 env:=HalfCheetah-v5
+
+The node must keep answering from run to run (the runs follow one another in that domain).
 
 Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy name>/``)::
 
     scorecard.md             the page: per mode a table and the sweep figure
     scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
-    adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps)
+    adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps;
+                             for an external node: another node needs another out:= folder)
+    logs/<mode>-<attack>-<eps>.mcap   policy:=external with keep_logs:=true: each graph run's log
 
 A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
 evaluations at most.
@@ -25,22 +37,27 @@ from __future__ import annotations
 import json
 import math
 import os
+import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from . import seeds
+from . import plugins, seeds
 from .adversary import AdversaryConfig, load_adversary, train_adversary
+from .dagger import RoundSpec
 from .args import arg, comma_list
 from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate
+from .mcap_log import read_run
 from .policy import resolve_policy
 from .provenance import stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, bundled_file, calibrated_eps,
-                       check_name)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, WHITE_BOX, bundled_file,
+                       calibrated_eps, check_name)
 from .report.stats import t95
+from .step import EpisodeStats, episode_stats, summarise_episodes
 
 
 @dataclass(frozen=True)
@@ -52,17 +69,18 @@ class Budget:
 
 
 BUDGETS = {"quick": Budget(episodes=5, adversary_steps=200_000), "full": Budget(episodes=20, adversary_steps=1_000_000)}
-SCALES = (0.25, 0.5, 1.0, 2.0)
-"""The eps sweep, as multiples of the mode's eps."""
+SCALES = "0.25,0.5,1,2"
+"""The eps sweep, as multiples of the mode's eps (the default of ``scales:=``)."""
 SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
-"""In the order the page lists them: noise, the black-box attacks, the white-box ones."""
+"""In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 
 
 @dataclass
 class ScorecardConfig:
     """Arguments of ``aril scorecard``."""
 
-    policy: str = arg("bundled", "the policy to score: a policy file, or a bundled name (dagger, aril, ...)")
+    policy: str = arg("bundled", "the policy to score: a policy file, a bundled name (dagger, aril, ...), or external "
+                                 "(your ROS 2 policy node, running in domain:=)")
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes: sensory, physical")
     budget: str = arg("quick", f"{' or '.join(BUDGETS)}: " + "; ".join(
@@ -70,6 +88,12 @@ class ScorecardConfig:
         for name, b in BUDGETS.items()))
     eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)")
     expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
+    scales: str = arg(SCALES, "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is "
+                              "judged at eps)")
+    attacks: str = arg("", "comma-separated attacks to score (default: every one that applies: "
+                           f"{', '.join(SCORED_ATTACKS)}; an external node not the white-box {', '.join(WHITE_BOX)})")
+    domain: str = arg("", "policy:=external: the ROS_DOMAIN_ID your node runs in, which every run joins")
+    keep_logs: bool = arg(False, "policy:=external: keep each graph run's log under <out>/logs/")
     seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)")
     episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)")
     adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)")
@@ -79,21 +103,22 @@ class ScorecardConfig:
 
 def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     """Score the policy mode by mode, write the folder, return the page's path."""
-    budget, modes = check_config(cfg)
+    budget, modes, attacks, scales = check_config(cfg)
     out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
     out.mkdir(parents=True, exist_ok=True)
-    clock = Progress(1 + len(modes) * len(SCORED_ATTACKS) * len(SCALES), log)
-    clean = run_cell(cfg, budget, "clean", "none", 0.0, None, clock)  # the same episodes as every attacked cell
+    clock = Progress(1 + len(modes) * len(attacks) * len(scales), log)
+    clean = run_cell(cfg, budget, "clean", "none", 0.0, None, clock, out)  # the same episodes as every other cell
     results = {}
     for mode in modes:
         eps = cfg.eps or calibrated_eps(cfg.env, mode)
-        adversary = ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log)
-        cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock)
-                          for scale in SCALES} for attack in SCORED_ATTACKS}
+        adversary = (ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log)
+                     if "aril_a" in attacks else None)
+        cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock, out)
+                          for scale in scales} for attack in attacks}
         results[mode] = {"eps": eps, "eps_source": "eps:=" if cfg.eps else "calibrated", "adversary": str(adversary),
                          "clean": clean, "attacks": cells, "worst": worst_case(clean, cells)}
-        plot_sweep(results[mode], cfg, mode, out / f"sweep-{mode}.png")
-    payload = {**stamp("aril scorecard", cfg), "budget": vars(budget), "scales": SCALES, "modes": results}
+        plot_sweep(results[mode], cfg, mode, scales, out / f"sweep-{mode}.png")
+    payload = {**stamp("aril scorecard", cfg), "budget": vars(budget), "scales": scales, "modes": results}
     (out / "scorecard.json").write_text(json.dumps(payload, indent=1) + "\n")
     page = out / "scorecard.md"
     page.write_text(markdown(payload, cfg))
@@ -102,17 +127,29 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     return page
 
 
-def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str]]:
-    """The budget and modes, or an error naming the bad argument, before anything runs."""
+def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], list[float]]:
+    """The budget, modes, attacks and scales, or an error naming the bad argument, before anything runs."""
     chosen = BUDGETS[check_name("budget", cfg.budget, tuple(BUDGETS))]
     budget = Budget(cfg.episodes or chosen.episodes, cfg.adversary_steps or chosen.adversary_steps)
     modes = [check_name("mode", m, ATTACKED_MODES) for m in comma_list(cfg.modes)]
-    if cfg.policy == "external":
-        raise ValueError("policy:=external (a live node) is not scored by aril scorecard yet; attack the node one "
-                         "attack at a time with python run_graph.py policy:=external attack:=random|spsa|aril_a")
-    resolve_policy(cfg.policy, cfg.env, modes[0])  # a missing or mismatched policy is reported first
+    external = cfg.policy == "external"
+    applicable = [a for a in SCORED_ATTACKS if not (external and a in WHITE_BOX)]
+    attacks = [check_name("attack", a, applicable) for a in comma_list(cfg.attacks)] if cfg.attacks else applicable
+    if external:
+        if not cfg.domain.isdigit():
+            raise ValueError("policy:=external needs domain:=<the ROS_DOMAIN_ID your node runs in> (start it with "
+                             "ROS_DOMAIN_ID=<n> ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), got "
+                             f"domain:={cfg.domain or '(unset)'}")
+        for group, name in (("aril_ros.collectors", "graph"), ("aril_ros.victims", "ros")):
+            plugins.load(group, name)  # the ROS side must be installed: says so if it is not
+    else:
+        resolve_policy(cfg.policy, cfg.env, modes[0])  # a missing or mismatched policy is reported first
     resolve_policy(cfg.expert, cfg.env)
-    return budget, modes
+    scales = sorted(float(x) for x in comma_list(cfg.scales))
+    if 1.0 not in scales or min(scales) <= 0:
+        raise ValueError(f"scales:={cfg.scales}: positive multiples of eps, 1 among them (the worst case is judged at "
+                         "eps)")
+    return budget, modes, attacks, scales
 
 
 def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
@@ -127,13 +164,37 @@ def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget,
             return path
     log(f"[scorecard] {mode}: training ARIL-A against {victim} ({budget.adversary_steps:,} steps, eps {eps:g}); "
         "the longest part")
-    return train_adversary(AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
-                                           steps=budget.adversary_steps, out=str(path)), log=log)
+    train = AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
+                            steps=budget.adversary_steps, out=str(path))
+    with ros_domain(cfg.domain if victim == "ros" else None):
+        return train_adversary(train, log=log)
+
+
+@contextmanager
+def ros_domain(domain: str | None):
+    """This process in ROS domain ``domain`` (local discovery unless set otherwise) for the block, as the
+    adversary trainer's client of an external node must be; nothing changes for None."""
+    names = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+    before = {name: os.environ.get(name) for name in names}
+    if domain is not None:
+        os.environ["ROS_DOMAIN_ID"] = domain
+        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:
-    """What the adversary trainer is told to attack (and its file records): the policy as typed, except a bundled
-    name trained per mode, which the trainer could not resolve alone: its file, relative to here when it can be."""
+    """What the adversary trainer is told to attack (and its file records): the policy as typed, an external node
+    through ROS (``ros``), and for a bundled name trained per mode, which the trainer could not resolve alone, its
+    file, relative to here when it can be."""
+    if policy == "external":
+        return "ros"
     if policy not in PER_MODE_POLICIES:
         return policy
     path = bundled_file(policy, env_id, mode)
@@ -141,15 +202,15 @@ def victim_of(policy: str, env_id: str, mode: str) -> str:
 
 
 def run_cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: Path | None,
-             clock: Progress) -> dict:
-    """One evaluation: every episode's figures and their summary. ARIL-A runs at its own eps when ``eps`` is, and
-    scaled to ``eps`` otherwise (its perturbation times eps / its eps)."""
-    started, episodes = time.monotonic(), []
-    summary = evaluate(EvalConfig(
-        env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
-        attack_file=str(adversary) if attack == "aril_a" else "", rescale=attack == "aril_a",
-        episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon), progress=episodes.append)
-    episodes.sort(key=lambda e: e.episode)
+             clock: Progress, out: Path) -> dict:
+    """One evaluation, in-process or (an external node) through the graph: every episode's figures and their
+    summary. ARIL-A runs at its own eps when ``eps`` is, and scaled to ``eps`` otherwise (its perturbation times
+    eps / its eps)."""
+    started = time.monotonic()
+    run = graph_episodes if cfg.policy == "external" else engine_episodes
+    episodes = sorted(run(cfg, budget, mode, attack, eps, str(adversary) if attack == "aril_a" else "", out),
+                      key=lambda e: e.episode)
+    summary = summarise_episodes(episodes)
     cell = {"eps": eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
             "episodes": [{"episode": e.episode, "env_seed": cfg.seed + e.episode, "return": e.reward,
                           "expert_loss": round(e.expert_loss, 6), "steps": e.steps, "max_abs_delta": round(e.max_delta, 6)}
@@ -157,6 +218,29 @@ def run_cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: 
     clock.done(f"{mode} {ATTACKS[attack]} eps {eps:g}: return {summary['mean_return']:.1f}",
                time.monotonic() - started)
     return cell
+
+
+def engine_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
+                    out: Path) -> list[EpisodeStats]:
+    episodes = []
+    evaluate(EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
+                        attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
+                        horizon=cfg.horizon), progress=episodes.append)
+    return episodes
+
+
+def graph_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
+                   out: Path) -> list[EpisodeStats]:
+    """The cell as a run of the graph with the user's node as its policy, read back from the run's log."""
+    with tempfile.TemporaryDirectory(prefix="aril_scorecard-") as scratch:
+        record = (out / "logs" if cfg.keep_logs else Path(scratch)) / f"{mode}-{attack}-{eps:g}.mcap"
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
+        spec = RoundSpec(env=cfg.env, mode=mode, attack=attack, eps=eps, policy="external", expert=cfg.expert,
+                         attack_file=adversary, episodes=budget.episodes, seed=cfg.seed, record=record,
+                         horizon=cfg.horizon, domain=cfg.domain, rescale=bool(adversary))
+        logged = read_run(plugins.load("aril_ros.collectors", "graph")(spec))
+    return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
 
 
 def paired_drop(clean: dict, attacked: dict) -> dict:
@@ -204,7 +288,7 @@ def markdown(payload: dict, cfg: ScorecardConfig) -> str:
     return "\n".join(lines)
 
 
-def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, path: Path) -> None:
+def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, scales: list[float], path: Path) -> None:
     """Return against eps, one line per attack (mean and paired 95% interval), the clean return as a band."""
     from .report.plots import _pyplot
 
@@ -212,9 +296,9 @@ def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, path: Path) -> Non
     fig, ax = plt.subplots(figsize=(6, 3.6))
     clean = result["clean"]["mean_return"]
     for attack, sweep in result["attacks"].items():
-        x = [sweep[s]["eps"] for s in SCALES]
-        y = np.array([sweep[s]["mean_return"] for s in SCALES])
-        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in SCALES])
+        x = [sweep[s]["eps"] for s in scales]
+        y = np.array([sweep[s]["mean_return"] for s in scales])
+        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in scales])
         ax.plot(x, y, marker="o", ms=3, label=ATTACKS[attack])
         ax.fill_between(x, y - half, y + half, alpha=0.12)
     ax.axhline(clean, color="black", lw=1, ls="--", label="clean")

@@ -61,7 +61,7 @@ class AttackerNode(Node):
             victim=resolve_policy(victim_name, env_id, self.mode) if white_box else self.probes,
             expert=resolve_policy(expert_name, env_id) if white_box or self.probes is not None else None,
             steps=declared(self, "k", 0) or None, adversary=declared(self, "attack_file", ""), mode=self.mode,
-            search=declared(self, "search", 0))
+            search=declared(self, "search", 0), rescale=declared(self, "rescale", False))
         if self.probes is not None and not self.attack.asks_victim:  # an adversary of the state alone, no search
             self.probes.close()
             self.probes = None

@@ -63,6 +63,8 @@ class GraphConfig:
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
+    rescale: bool = arg(False, "aril_a at an eps:= other than its adversary's: scale its perturbation by eps / its eps "
+                               "(an eps sweep with one adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)", low=1, high=100_000)
     # seeds are non-negative (numpy, gymnasium), and seed + episodes stays within 32 bits
     seed: int = arg(0, "seed of the first episode and of the attack noise", low=0, high=2**31 - 1)
@@ -257,7 +259,7 @@ class Orchestrator:
         self.cfg, self.log = check_ranges(cfg), log
         domain_candidates(cfg.domain)  # a bad id is refused here, before any file is loaded
         self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
-        for name in ("attack_file", "search"):  # aril_a's alone: elsewhere it would be silently ignored
+        for name in ("attack_file", "search", "rescale"):  # aril_a's alone: elsewhere it would be silently ignored
             if getattr(cfg, name) and self.attack != "aril_a":
                 raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:=aril_a only, got "
                                     f"attack:={self.attack}")
@@ -272,7 +274,10 @@ class Orchestrator:
         adversary = None
         if self.attack == "aril_a":  # its file's eps; a missing or mismatched file is reported before anything starts
             adversary = load_adversary(cfg.attack_file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode)
-            self.eps = adversary.eps
+            if cfg.eps and abs(cfg.eps - adversary.eps) > 1e-12 and not cfg.rescale:
+                raise ValueError(f"the adversary was trained with eps={adversary.eps}, not eps:={cfg.eps} "
+                                 "(rescale:=true scales its perturbation)")
+            self.eps = cfg.eps if cfg.rescale and cfg.eps else adversary.eps
         # who listens on action: the simulator, the recorder and, when the attack queries, the attacker's
         # probe client; the policy node waits for all of them, or step 0's action may reach only some
         self.probes = queries_victim(self.attack, adversary, cfg.search)
@@ -301,7 +306,7 @@ class Orchestrator:
             "simulator": {**common, "horizon": cfg.horizon,
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
-                         "k": cfg.k, "search": cfg.search, "expert": expert,
+                         "k": cfg.k, "search": cfg.search, "expert": expert, "rescale": cfg.rescale,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
             "expert": {"env": cfg.env, "expert": expert},

@@ -38,6 +38,9 @@ DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
     ({"render": True, "render_size": "320"}, "render_size:=320 is not a frame size: <width>x<height>"),
     ({"search": 4}, "search:=4 is used by attack:=aril_a only, got attack:=random"),
     ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a only"),
+    ({"rescale": True}, "rescale:=True is used by attack:=aril_a only"),
+    ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "the adversary was trained with eps=0.3, not eps:=0.5 "
+                                                           "(rescale:=true scales its perturbation)"),
 ])
 def test_every_argument_is_checked_before_anything_starts(args, message):
     """The orchestrator's constructor refuses it (nodes start only in ``run``), for an in-process caller's

@@ -7,7 +7,7 @@ import pytest
 
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.report.stats import t95
-from aril_ros.scorecard import SCALES, SCORED_ATTACKS, ScorecardConfig, scorecard
+from aril_ros.scorecard import SCORED_ATTACKS, ScorecardConfig, scorecard
 
 
 @pytest.fixture(scope="module")
@@ -15,7 +15,7 @@ def small_card(tmp_path_factory):
     out = tmp_path_factory.mktemp("card")
     lines = []
     cfg = ScorecardConfig(policy="dagger", env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096,
-                          horizon=25, out=str(out))
+                          horizon=25, scales="2,1", out=str(out))
     page = scorecard(cfg, log=lambda line, **_: lines.append(line))
     return cfg, out, page, lines
 
@@ -28,7 +28,7 @@ def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small
     assert seeds_of(sensory["clean"]) == [cfg.seed, cfg.seed + 1, cfg.seed + 2]
     assert set(sensory["attacks"]) == set(SCORED_ATTACKS)
     for sweep in sensory["attacks"].values():
-        assert [float(s) for s in sweep] == list(SCALES)
+        assert [float(s) for s in sweep] == [1.0, 2.0]
         for scale, cell in sweep.items():
             assert seeds_of(cell) == seeds_of(sensory["clean"])
             assert cell["eps"] == pytest.approx(float(scale) * sensory["eps"])
@@ -61,13 +61,16 @@ def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card):
     again = []
     scorecard(cfg, log=lambda line, **_: again.append(line))
     assert any("reusing" in line for line in again) and not any("training ARIL-A" in line for line in again)
-    assert sum("cell " in line for line in again) == 1 + len(SCORED_ATTACKS) * len(SCALES)
+    assert sum("cell " in line for line in again) == 1 + len(SCORED_ATTACKS) * 2
 
 
 @pytest.mark.parametrize("changes, message", [
     ({"budget": "huge"}, "unknown budget 'huge'; choose one of quick, full"),
+    ({"scales": "0.5,2"}, "scales:=0.5,2: positive multiples of eps, 1 among them"),
     ({"modes": "clean"}, "unknown mode 'clean'"),
-    ({"policy": "external"}, "policy:=external .* run_graph.py policy:=external"),
+    ({"policy": "external"}, r"policy:=external needs domain:=<the ROS_DOMAIN_ID your node runs in>"),
+    ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, "
+                                                                  "aril_a"),
     ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
 ])
 def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, message):
@@ -87,3 +90,31 @@ def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_nam
     assert victim_of("aril", "Swimmer-v5", "physical") == "aril_ros/data/aril/Swimmer-v5-physical.pt"
     monkeypatch.chdir(tmp_path)
     assert victim_of("aril", "Swimmer-v5", "physical") == str(package)
+
+
+def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_file(tmp_path):
+    """The bundled DAgger learner run as the user's own node: every cell through the graph, ARIL-A trained
+    against the node's answers; the graph is bit-exact to the engine, so the figures are the engine's."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    common = dict(env="Swimmer-v5", modes="sensory", attacks="random,aril_a", scales="1,2", episodes=2,
+                  adversary_steps=4096, horizon=20)
+    node = subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.policy_node", "--ros-args", "-p", "env:=Swimmer-v5",
+                             "-p", "policy:=dagger", "-r", "__node:=my_policy"], env=dict(os.environ))
+    try:
+        lines = []
+        scorecard(ScorecardConfig(policy="external", domain=os.environ["ROS_DOMAIN_ID"], out=str(tmp_path / "node"),
+                                  **common), log=lambda line, **_: lines.append(line))
+    finally:
+        node.send_signal(signal.SIGINT)
+        node.wait(timeout=20)
+    scorecard(ScorecardConfig(policy="dagger", out=str(tmp_path / "file"), **common), log=lambda *a, **k: None)
+    by_node, by_file = (json.loads((tmp_path / who / "scorecard.json").read_text())["modes"]["sensory"]
+                        for who in ("node", "file"))
+    assert by_node["clean"]["episodes"] == by_file["clean"]["episodes"]
+    assert by_node["attacks"]["random"] == by_file["attacks"]["random"]
+    assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]  # the same adversary, trained on answers
+    assert any("training ARIL-A against ros" in line for line in lines)
