@@ -10,6 +10,8 @@ the simulator never steps on their answers. msgs_doc/README.md is the human-read
 """
 from __future__ import annotations
 
+import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 # Topic names, relative so that ``-r __ns:=/robot1`` namespaces a whole graph.
@@ -103,3 +105,24 @@ def is_probe(frame_id: str) -> bool:
 def stamp_ns(global_step: int, dt: float) -> int:
     """Sim time of a global step in nanoseconds (integer, so it is exact and monotonic)."""
     return round(global_step * dt * 1e9)
+
+
+ROS_VARIABLES = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+
+
+@contextmanager
+def ros_domain(domain: int | str):
+    """This process in ROS domain ``domain`` for the block, discovering on this machine alone unless the caller set a
+    range: what a node, or a client of one, started in this process joins. The caller's variables come back after.
+    Yields the variables set (the environment to start a run's node processes with)."""
+    before = {name: os.environ.get(name) for name in ROS_VARIABLES}
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    try:
+        yield {name: os.environ[name] for name in ROS_VARIABLES}
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value

@@ -39,7 +39,6 @@ import math
 import os
 import tempfile
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +51,7 @@ from .args import arg, comma_list
 from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate
 from .mcap_log import read_run
+from .protocol import ros_domain
 from .policy import resolve_policy
 from .provenance import stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, WHITE_BOX, bundled_file,
@@ -166,27 +166,10 @@ def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget,
         "the longest part")
     train = AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
                             steps=budget.adversary_steps, out=str(path))
-    with ros_domain(cfg.domain if victim == "ros" else None):
+    if victim != "ros":
         return train_adversary(train, log=log)
-
-
-@contextmanager
-def ros_domain(domain: str | None):
-    """This process in ROS domain ``domain`` (local discovery unless set otherwise) for the block, as the
-    adversary trainer's client of an external node must be; nothing changes for None."""
-    names = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
-    before = {name: os.environ.get(name) for name in names}
-    if domain is not None:
-        os.environ["ROS_DOMAIN_ID"] = domain
-        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    try:
-        yield
-    finally:
-        for name, value in before.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
+    with ros_domain(cfg.domain):  # the trainer's client asks the user's node in its domain
+        return train_adversary(train, log=log)
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

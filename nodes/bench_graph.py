@@ -22,6 +22,7 @@ from aril_ros.args import arg, parse_args, usage
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
+from aril_ros.protocol import ros_domain
 from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
 from aril_ros.rollout import RolloutEngine
 from aril_ros_nodes import bare_chain
@@ -62,17 +63,10 @@ def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
 
 def bare_chain_steps_per_s(steps: int) -> float:
     domain, lock = allocate_domain("auto")
-    ros_vars = {"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    caller_env = {k: os.environ.get(k) for k in ros_vars}
-    os.environ.update(ros_vars)  # the chain's simulator runs in this process
     try:
-        return bare_chain.steps_per_s(steps, dict(os.environ))
+        with ros_domain(domain):  # the chain's simulator runs in this process
+            return bare_chain.steps_per_s(steps, dict(os.environ))
     finally:
-        for key, value in caller_env.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
         lock.close()
 
 

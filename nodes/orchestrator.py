@@ -29,8 +29,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from aril_ros import __version__
 from aril_ros import protocol as P
 from aril_ros.adversary_net import load_adversary
@@ -39,7 +37,7 @@ from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_joint_values, cdr_stamp
 from aril_ros.policy import resolve_policy
-from aril_ros.protocol import ProbeTag, StepTag
+from aril_ros.protocol import ProbeTag, StepTag, ros_domain
 from aril_ros.provenance import git_revision
 from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MAX_EPS,
                                MODES, PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
@@ -427,12 +425,13 @@ class Orchestrator:
     # -------------------------------------------------------------------------------------- run
     def run(self) -> dict:
         domain, domain_lock = allocate_domain(self.cfg.domain)
-        env = {**os.environ, "ROS_DOMAIN_ID": str(domain),
-               "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"),
-               "PYTHONUNBUFFERED": "1"}
-        ros_vars = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
-        caller_env = {k: os.environ.get(k) for k in ros_vars}  # restored after the run (an in-process caller's)
-        os.environ.update({k: env[k] for k in ros_vars})
+        try:
+            with ros_domain(domain):  # this process's client and the nodes it starts; an in-process caller's come back
+                return self._run(domain, {**os.environ, "PYTHONUNBUFFERED": "1"})
+        finally:
+            domain_lock.close()
+
+    def _run(self, domain: int, env: dict) -> dict:
         self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
                  f"domain={domain} logs={self.log_dir}"
                  + (f" (the external policy node: answer once action has {self.action_listeners} subscribers)"
@@ -466,12 +465,6 @@ class Orchestrator:
                 writer.close(interrupted=interrupted, reason=reason,
                              episodes_completed=len(recorder.episode_stats))
                 self.log(f"[run_graph] recorded {writer.steps} complete steps to {self.record}", file=sys.stderr)
-            domain_lock.close()
-            for key, value in caller_env.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         return self.summary(recorder, seconds, domain)
