@@ -1,0 +1,26 @@
+"""profile_graph's bookkeeping: which process is which, and the CPU a process has used."""
+import os
+import time
+
+from aril_ros_nodes.profile_graph import CpuSampler, process_name
+
+
+def test_processes_are_named_by_their_part_of_the_run():
+    me = os.getpid()
+    assert process_name(me, "python anything").startswith("this process")
+    assert process_name(1, "python -m aril_ros_nodes.simulator_node --ros-args -p env:=Ant-v5") == "simulator"
+    assert process_name(1, "python -m aril_ros_nodes.policy_node --ros-args") == "policy"
+    assert process_name(1, "python -m aril_ros_nodes.bare_chain --ros-args -p role:=expert -r __node:=x") == "bare expert"
+    assert process_name(1, "python train.py") is None
+
+
+def test_the_sampler_reads_the_cpu_this_process_uses():
+    with CpuSampler() as sampler:
+        time.sleep(0.15)
+        before = sampler.by_name()
+        started = time.process_time()
+        while time.process_time() - started < 0.5:  # half a second of CPU
+            pass
+        time.sleep(0.25)
+    used = sum(sampler.by_name().values()) - sum(before.values())
+    assert 0.4 < used < 1.5
