@@ -46,6 +46,9 @@ class ChunkStreamWriter:
         self._chunk = bytearray()  # the open chunk's records: packed here, the hot path (mcap's builder: 5x slower)
         self._chunk_messages: dict[int, list[tuple[int, int]]] = defaultdict(list)  # channel -> (log time, offset)
         self._chunk_times: tuple[int, int] | None = None
+        # one compressor for every chunk, at zstd's fastest level: zstandard.compress() builds its tables anew per
+        # call, and a step's chunk (a few kB) compresses as small at level 1 as at 3 (the recorder's largest cost)
+        self._compressor = zstandard.ZstdCompressor(level=1)
         self._chunk_indexes = tempfile.TemporaryFile(prefix="aril_ros-chunk-indexes-")
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
@@ -96,7 +99,7 @@ class ChunkStreamWriter:
 
     def _write_chunk(self) -> None:
         content = bytes(self._chunk)
-        compressed = zstandard.compress(content)
+        compressed = self._compressor.compress(content)
         start, end = self._chunk_times
         chunk_offset = self._stream.tell()
         records = bytearray(_CHUNK.pack(Opcode.CHUNK, _CHUNK.size - 9 + len(_ZSTD) + 8 + len(compressed), start, end,
