@@ -79,6 +79,15 @@ def usage(cls, prog: str, summary: str) -> str:
     return "\n".join(lines)
 
 
+def module_config(cls, prog: str, doc: str, argv: list[str]):
+    """A ``python -m`` module's arguments: ``cls`` from ``argv``, or None once the usage is printed (``--help``,
+    ``-h``; its summary is the first line of the module's ``doc``)."""
+    if "--help" in argv or "-h" in argv:
+        print(usage(cls, prog, doc.strip().splitlines()[0]))
+        return None
+    return parse_args(cls, argv)
+
+
 def comma_list(text: str) -> list[str]:
     """``a,b,c`` as a list (empty items dropped)."""
     return [x for x in text.split(",") if x]

@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from aril_ros.args import arg, parse_args, usage
+from aril_ros.args import arg, module_config
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
@@ -71,10 +71,9 @@ def bare_chain_steps_per_s(steps: int) -> float:
 
 
 def main(argv):
-    if "--help" in argv or "-h" in argv:
-        print(usage(GraphBenchConfig, "python -m aril_ros_nodes.bench_graph", __doc__.strip().splitlines()[0]))
+    cfg = module_config(GraphBenchConfig, "python -m aril_ros_nodes.bench_graph", __doc__, argv)
+    if cfg is None:
         return
-    cfg = parse_args(GraphBenchConfig, argv)
     import torch
 
     torch.set_num_threads(1)

@@ -25,7 +25,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from aril_ros.args import arg, parse_args, usage
+from aril_ros.args import arg, module_config
 from aril_ros.mcap_log import RunLogError, read_run
 from aril_ros.registry import DEFAULT_ENV, MODES
 
@@ -142,10 +142,9 @@ def check_log(run: Run, summary: dict, cfg: SoakConfig) -> str:
 
 
 def main(argv):
-    if "--help" in argv or "-h" in argv:
-        print(usage(SoakConfig, "python -m aril_ros_nodes.bench_soak", __doc__.strip().splitlines()[0]))
+    cfg = module_config(SoakConfig, "python -m aril_ros_nodes.bench_soak", __doc__, argv)
+    if cfg is None:
         return 0
-    cfg = parse_args(SoakConfig, argv)
     with tempfile.TemporaryDirectory(prefix="aril_soak-") as folder:  # the logs, ~1.4 MB per 1000 steps each
         runs = [start_run(cfg, i, Path(folder)) for i in range(cfg.runs)]
         try:

@@ -17,11 +17,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from aril_ros.args import arg, parse_args, usage
-from aril_ros.protocol import ros_domain
+from aril_ros.args import arg, module_config
 from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
-from aril_ros_nodes import bare_chain
-from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator, allocate_domain
+from aril_ros_nodes.bench_graph import bare_chain_steps_per_s
+from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
 
 TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -112,24 +111,14 @@ def graph_run(cfg: ProfileConfig, mode: str):
     return run
 
 
-def bare_run(steps: int) -> None:
-    domain, lock = allocate_domain("auto")
-    try:
-        with ros_domain(domain):
-            bare_chain.steps_per_s(steps, dict(os.environ))
-    finally:
-        lock.close()
-
-
 def main(argv):
-    if "--help" in argv or "-h" in argv:
-        print(usage(ProfileConfig, "python -m aril_ros_nodes.profile_graph", __doc__.strip().splitlines()[0]))
+    cfg = module_config(ProfileConfig, "python -m aril_ros_nodes.profile_graph", __doc__, argv)
+    if cfg is None:
         return
-    cfg = parse_args(ProfileConfig, argv)
     import torch
 
     torch.set_num_threads(1)
-    columns = {"bare chain": per_step(bare_run, cfg.steps),
+    columns = {"bare chain": per_step(bare_chain_steps_per_s, cfg.steps),
                **{f"graph {mode}": per_step(graph_run(cfg, mode), cfg.steps) for mode in MODES}}
     names = sorted({name for column in columns.values() for name in column})
     print(f"{cfg.env}: ms of CPU per step by process ({cfg.steps} and {3 * cfg.steps} steps, the difference)")

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from ..adversary import AdversaryConfig, train_adversary
-from ..args import arg, parse_args, usage
+from ..args import arg, module_config
 from ..envs import make_gym_env
 from ..registry import DEFAULT_ENV
 
@@ -59,10 +59,9 @@ def sb3(cfg, n_envs: int) -> float:
 
 
 def main(argv):
-    if "--help" in argv or "-h" in argv:
-        print(usage(AdversaryBenchConfig, "python -m aril_ros.benchmarks.adversary", __doc__.strip().splitlines()[0]))
+    cfg = module_config(AdversaryBenchConfig, "python -m aril_ros.benchmarks.adversary", __doc__, argv)
+    if cfg is None:
         return
-    cfg = parse_args(AdversaryBenchConfig, argv)
     torch.set_num_threads(1)
     rows = {f"ARIL-A (ours, {cfg.n_envs} envs)": ours(cfg),
             "SB3 PPO (1 env)": sb3(cfg, 1),

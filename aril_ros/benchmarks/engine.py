@@ -21,7 +21,7 @@ from itertools import islice
 import numpy as np
 import torch
 
-from ..args import arg, parse_args, usage
+from ..args import arg, module_config
 from ..attacks import make_attack
 from ..envs import layout_of, make_gym_env
 from ..policy import resolve_policy
@@ -80,10 +80,9 @@ def engine_steps(cfg: BenchConfig, mode: str):
 
 
 def main(argv):
-    if "--help" in argv or "-h" in argv:
-        print(usage(BenchConfig, "python -m aril_ros.benchmarks.engine", __doc__.strip().splitlines()[0]))
+    cfg = module_config(BenchConfig, "python -m aril_ros.benchmarks.engine", __doc__, argv)
+    if cfg is None:
         return
-    cfg = parse_args(BenchConfig, argv)
     torch.set_num_threads(cfg.threads)
     runners = {"raw env.step": raw_steps(cfg.env), **{f"engine {mode}": engine_steps(cfg, mode) for mode in MODES}}
     best = dict.fromkeys(runners, 0.0)
