@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 export ARIL_DATA=runs/aril-data
 mkdir -p runs docs/onboarding/Hopper-v5
-/usr/bin/time -f "onboard wall %e s" .venv/bin/aril onboard env:=Hopper-v5 2>&1 | tee -a runs/onboard-hopper.log
+/usr/bin/time -f "onboard wall %e s" .venv/bin/aril onboard env:=Hopper-v5 expert_steps:=400000 2>&1 | tee -a runs/onboard-hopper.log
 /usr/bin/time -f "scorecard wall %e s" .venv/bin/aril scorecard policy:=dagger env:=Hopper-v5 budget:=quick \
   out:=docs/scorecards/Hopper-v5-dagger 2>&1 | tee -a runs/scorecard-hopper.log
 cp "$ARIL_DATA"/expert/Hopper-v5.pt docs/onboarding/Hopper-v5/expert.pt
