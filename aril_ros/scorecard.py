@@ -106,12 +106,12 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     budget, modes, attacks, scales = check_config(cfg)
     out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
     out.mkdir(parents=True, exist_ok=True)
-    clock = Progress(1 + len(modes) * len(attacks) * len(scales), log)
+    clock = Progress(1 + len(modes) * len(attacks) * len(scales), len(modes) if "aril_a" in attacks else 0, log)
     clean = run_cell(cfg, budget, "clean", "none", 0.0, None, clock, out)  # the same episodes as every other cell
     results = {}
     for mode in modes:
         eps = cfg.eps or calibrated_eps(cfg.env, mode)
-        adversary = (ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log)
+        adversary = (clock.training(lambda: ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log))
                      if "aril_a" in attacks else None)
         cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock, out)
                           for scale in scales} for attack in attacks}
@@ -296,15 +296,33 @@ def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, scales: list[float
 
 
 class Progress:
-    """Evaluation cells done out of ``total``, and an ETA from the mean time per cell so far (the adversary
-    trainings, which print their own progress, are not in it)."""
+    """Evaluation cells done out of ``cells``, adversary trainings out of ``trainings``, and an ETA: the mean time of
+    a cell so far times the cells left, plus the mean time of a training times the trainings left (once one is done;
+    until then the ETA says a training is still to come)."""
 
-    def __init__(self, total: int, log):
-        self.total, self.log, self.count, self.seconds = total, log, 0, 0.0
+    def __init__(self, cells: int, trainings: int, log):
+        self.cells, self.trainings, self.log = cells, trainings, log
+        self.cell_times: list[float] = []
+        self.training_times: list[float] = []
 
     def done(self, what: str, seconds: float) -> None:
-        self.count += 1
-        self.seconds += seconds
-        eta = self.seconds / self.count * (self.total - self.count)
-        self.log(f"[scorecard] cell {self.count}/{self.total} {what} ({seconds:.0f} s); evaluations left: "
-                 f"~{eta / 60:.1f} min", flush=True)
+        self.cell_times.append(seconds)
+        self.log(f"[scorecard] cell {len(self.cell_times)}/{self.cells} {what} ({seconds:.0f} s); {self.eta()}",
+                 flush=True)
+
+    def training(self, train):
+        """``train()``, timed as one of the trainings."""
+        started = time.monotonic()
+        result = train()
+        self.training_times.append(time.monotonic() - started)
+        return result
+
+    def eta(self) -> str:
+        cells_left = self.cells - len(self.cell_times)
+        trainings_left = self.trainings - len(self.training_times)
+        seconds = np.mean(self.cell_times) * cells_left
+        if trainings_left and not self.training_times:
+            return f"left: ~{seconds / 60:.1f} min of evaluations and {trainings_left} ARIL-A training(s)"
+        if trainings_left:
+            seconds += np.mean(self.training_times) * trainings_left
+        return f"left: ~{seconds / 60:.1f} min"

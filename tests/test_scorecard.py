@@ -120,3 +120,18 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     assert by_node["attacks"]["random"] == by_file["attacks"]["random"]
     assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]  # the same adversary, trained on answers
     assert any("training ARIL-A against ros" in line for line in lines)
+
+
+def test_the_eta_counts_the_trainings_once_one_is_timed():
+    import time
+
+    from aril_ros.scorecard import Progress
+
+    lines = []
+    clock = Progress(cells=4, trainings=2, log=lambda line, **_: lines.append(line))
+    clock.done("clean", 60.0)
+    assert lines[-1].endswith("left: ~3.0 min of evaluations and 2 ARIL-A training(s)")
+    clock.training(lambda: time.sleep(0.3))
+    clock.done("random", 60.0)
+    eta = float(lines[-1].split("~")[1].split(" min")[0])
+    assert "cell 2/4" in lines[-1] and 2.0 <= eta <= 2.02  # two cells of 60 s and one training of 0.3 s left
