@@ -32,7 +32,6 @@ from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_
                        bundled_file, calibrated_eps, user_calibration)
 from .report.stats import summarise, worst_attack
 
-"""Where ``aril calibrate-eps`` writes its table by default (its JSON: the bundled calibration)."""
 SEARCH_ROW = "aril_a_search"
 """ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
 ATTACK_ROWS = ("none", *THREATS, SEARCH_ROW)
@@ -91,10 +90,10 @@ class CalibrationConfig:
 
 
 def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
-    """Sweep the grid for each env and mode; rows of other envs/modes already in the output (same
-    victim and rule) are kept, each with the command that made it."""
+    """Sweep the grid for each env and mode; rows already in the output under the same rule are kept, each with
+    the command that made it, except an env's rows of another victim (an env is calibrated against one)."""
     made = stamp("aril calibrate-eps", cfg)
-    json_path, md_path = _outputs(str(cfg.out or user_calibration().with_suffix("")), "")
+    json_path, md_path = _outputs(cfg.out, str(user_calibration().with_suffix("")))
     fresh = []
     grid = sorted(float(e) for e in comma_list(cfg.grid))
     for env in comma_list(cfg.envs):
@@ -122,10 +121,10 @@ def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
                           "episodes": cfg.episodes, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}", **made})
     # each row names its victim: a file holds envs calibrated against learners of their own (a user's), but an
     # env's modes are calibrated against one learner, so another victim for an env starts that env anew
+    file_victim = json.loads(json_path.read_text())["victim"] if json_path.exists() else cfg.policy
     rows = _merge(json_path, lambda r: (r["env"], r["mode"]), fresh, lambda old: old.get("max_drop") == cfg.max_drop)
     for row in rows:
-        if "victim" not in row:  # written before rows named theirs: the file's one
-            row["victim"] = json.loads(json_path.read_text())["victim"]
+        row.setdefault("victim", file_victim)  # a row written before rows named theirs: the file's one
     envs_now = {row["env"] for row in fresh}
     rows = [row for row in rows if row["env"] not in envs_now or row["victim"] == cfg.policy]
     victims = sorted({row["victim"] for row in rows})

@@ -113,13 +113,12 @@ ROS_VARIABLES = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
 @contextmanager
 def ros_domain(domain: int | str):
     """This process in ROS domain ``domain`` for the block, discovering on this machine alone unless the caller set a
-    range: what a node, or a client of one, started in this process joins. The caller's variables come back after.
-    Yields the variables set (the environment to start a run's node processes with)."""
+    range: what a node, or a client of one, started in this process joins. The caller's variables come back after."""
     before = {name: os.environ.get(name) for name in ROS_VARIABLES}
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     try:
-        yield {name: os.environ[name] for name in ROS_VARIABLES}
+        yield
     finally:
         for name, value in before.items():
             if value is None:

@@ -39,13 +39,14 @@ import math
 import os
 import tempfile
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import plugins, seeds
-from .adversary import AdversaryConfig, load_adversary, train_adversary
+from .adversary import load_adversary, ready_adversary
 from .dagger import RoundSpec
 from .args import arg, comma_list
 from .envs import HORIZON
@@ -56,7 +57,7 @@ from .policy import resolve_policy
 from .provenance import stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, WHITE_BOX, bundled_file,
                        calibrated_eps, check_name)
-from .report.stats import t95
+from .report.stats import t95, worst_attack
 from .step import EpisodeStats, episode_stats, summarise_episodes
 
 
@@ -111,7 +112,7 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     results = {}
     for mode in modes:
         eps = cfg.eps or calibrated_eps(cfg.env, mode)
-        adversary = (clock.training(lambda: ready_adversary(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log))
+        adversary = (clock.training(lambda: adversary_for(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log))
                      if "aril_a" in attacks else None)
         cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock, out)
                           for scale in scales} for attack in attacks}
@@ -152,9 +153,9 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
     return budget, modes, attacks, scales
 
 
-def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
+def adversary_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
     """ARIL-A trained against the policy in ``mode`` at ``eps``: the one at ``path`` when it was trained for the
-    same policy file, eps and steps, else trained now (the longest part of a scorecard)."""
+    same policy, eps and at least the budget's steps, else trained now (the longest part of a scorecard)."""
     victim = victim_of(cfg.policy, cfg.env, mode)
     if path.exists():
         adversary = load_adversary(path)
@@ -164,12 +165,9 @@ def ready_adversary(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget,
             return path
     log(f"[scorecard] {mode}: training ARIL-A against {victim} ({budget.adversary_steps:,} steps, eps {eps:g}); "
         "the longest part")
-    train = AdversaryConfig(env=cfg.env, mode=mode, eps=eps, victim=victim, expert=cfg.expert,
-                            steps=budget.adversary_steps, out=str(path))
-    if victim != "ros":
-        return train_adversary(train, log=log)
-    with ros_domain(cfg.domain):  # the trainer's client asks the user's node in its domain
-        return train_adversary(train, log=log)
+    # an external node is asked through ROS, in its domain
+    with ros_domain(cfg.domain) if victim == "ros" else nullcontext():
+        return ready_adversary(path, victim, cfg.env, mode, eps, cfg.expert, budget.adversary_steps, True, log)
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:
@@ -239,8 +237,8 @@ def paired_drop(clean: dict, attacked: dict) -> dict:
 
 
 def worst_case(clean: dict, cells: dict) -> dict:
-    """The attack with the lowest return at scale 1, with its paired drop."""
-    attack = min(cells, key=lambda a: cells[a][1.0]["mean_return"])
+    """The attack with the lowest return at scale 1 (the tables' rule), with its paired drop."""
+    attack = worst_attack({a: {"mean": sweep[1.0]["mean_return"]} for a, sweep in cells.items()}, among=tuple(cells))
     return {"attack": attack, "return": cells[attack][1.0]["mean_return"], **paired_drop(clean, cells[attack][1.0])}
 
 
