@@ -151,7 +151,8 @@ class SPSA(QueryAttack):
     the episode's rng, queries the loss at ``delta ± c u`` (``c = eps / 2``) and steps
     ``delta <- clip(delta + alpha * sign(sum (L+ - L-) u))`` with ``alpha = 2.5 eps / k`` (so a consistent
     sign reaches the box's corner); the iterate with the largest queried loss is kept. Queries per
-    step: ``1 + k (2 samples + 1)``.
+    step: ``1 + k (2 samples + 1)``, in ``k + 1`` batches: each iterate is asked together with the
+    directions around it (through a graph a batch is one round trip to the policy node and back).
     """
 
     name = "spsa"
@@ -164,22 +165,26 @@ class SPSA(QueryAttack):
         self.steps, self.samples = int(steps), int(samples)
 
     def propose(self, true_obs, rngs):
-        n, n_pos, eps = len(true_obs), self.layout.n_position, self.eps
+        n, n_pos, eps, s = len(true_obs), self.layout.n_position, self.eps, self.samples
         label = self.expert.act(true_obs)
         delta = np.zeros_like(true_obs)
-        best, best_loss = delta, self.losses(true_obs, delta[:, None], label)[:, 0]
+        best, best_loss = delta, np.full(n, -np.inf)
         for _ in range(self.steps):
-            u = np.zeros((n, self.samples, true_obs.shape[1]))
+            u = np.zeros((n, s, true_obs.shape[1]))
             for row, rng in enumerate(rngs):
-                u[row, :, :n_pos] = 2.0 * rng.integers(0, 2, (self.samples, n_pos)) - 1.0
-            probes = np.concatenate([delta[:, None] + 0.5 * eps * u, delta[:, None] - 0.5 * eps * u], axis=1)
-            loss = self.losses(true_obs, probes, label)
-            slope = ((loss[:, : self.samples] - loss[:, self.samples:])[:, :, None] * u).sum(1)
+                u[row, :, :n_pos] = 2.0 * rng.integers(0, 2, (s, n_pos)) - 1.0
+            loss = self.losses(true_obs, np.concatenate(
+                [delta[:, None], delta[:, None] + 0.5 * eps * u, delta[:, None] - 0.5 * eps * u], axis=1), label)
+            best, best_loss = self.keep_better(delta, loss[:, 0], best, best_loss)
+            slope = ((loss[:, 1:s + 1] - loss[:, s + 1:])[:, :, None] * u).sum(1)
             delta = self.project(delta + 2.5 * eps / self.steps * np.sign(slope))
-            loss = self.losses(true_obs, delta[:, None], label)[:, 0]
-            better = loss > best_loss
-            best, best_loss = np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
-        return best
+        return self.keep_better(delta, self.losses(true_obs, delta[:, None], label)[:, 0], best, best_loss)[0]
+
+    @staticmethod
+    def keep_better(delta, loss, best, best_loss):
+        """The iterate of each row with the larger loss (the earlier one on a tie), and that loss."""
+        better = loss > best_loss
+        return np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
 
 
 class LearnedAttack(QueryAttack):
@@ -256,17 +261,19 @@ def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: i
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None, rescale: bool = False,
-                search: int = 0) -> Attack:
+                search: int = 0, samples: int | None = None) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; spsa asks
-    both for actions only (``steps``: its iterations); aril_a needs an adversary file (default: the
-    bundled one against the bundled learner; its eps is the one it was trained with, unless
-    ``rescale`` scales it to ``eps``) and, when it takes actions or searches (``search`` candidates),
-    the victim and the expert to query."""
+    both for actions only (``steps``: its iterations, ``samples``: its directions per iteration); aril_a
+    needs an adversary file (default: the bundled one against the bundled learner; its eps is the one it
+    was trained with, unless ``rescale`` scales it to ``eps``) and, when it takes actions or searches
+    (``search`` candidates), the victim and the expert to query."""
     check_name("attack", name, ATTACKS)
     if name == "aril_a":
         return _learned_attack(layout, eps, adversary, mode, rescale, victim, expert, search)
     if name in WHITE_BOX or name in QUERY_ATTACKS:
         kwargs = {} if steps is None else {"steps": steps}
+        if name == "spsa" and samples is not None:
+            kwargs["samples"] = samples
         return CLASSES[name](layout, eps, victim, expert, **kwargs)
     return CLASSES[name](layout, eps)
 
