@@ -37,7 +37,7 @@ from aril_ros.attacks import queries_victim
 from aril_ros.envs import HORIZON, layout_of
 from aril_ros.mcap_log import RunLogError, RunLogWriter, cdr_header, cdr_joint_values, cdr_stamp
 from aril_ros.policy import resolve_policy
-from aril_ros.protocol import ProbeTag, StepTag, ros_domain
+from aril_ros.protocol import SAFE_DOMAINS, ProbeTag, StepTag, checked_domain, ros_domain
 from aril_ros.provenance import git_revision
 from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MAX_EPS,
                                MODES, PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
@@ -58,6 +58,8 @@ class GraphConfig:
     eps: float = arg(0.0, f"L-infinity bound of the perturbation on the zero-order entries, at most {MAX_EPS} "
                           "(0: the calibrated one for env and mode, bundled with aril_ros; aril_a: its adversary's)")
     k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)", low=0, high=1000)
+    samples: int = arg(0, "spsa: random directions per iteration, each asked at +- (0: the attack's default)",
+                       low=0, high=1000)
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
@@ -114,9 +116,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 EXTERNAL_HINT_EVERY = 5.0
 """Seconds between two reminders, while an external policy node is awaited, of what is missing and how to join."""
 
-SAFE_DOMAINS = (*range(102), *range(215, 233))
-"""ROS domain ids whose DDS ports (7400 + 250 * id and up) keep clear of Linux's ephemeral ports
-(32768-60999), as the ROS 2 docs list them; Fast-DDS refuses any id above 232 outright."""
+ONE_ATTACKS_ARGUMENTS = {"attack_file": "aril_a", "search": "aril_a", "rescale": "aril_a", "samples": "spsa"}
+"""Arguments that one attack alone reads, and that attack."""
 
 
 def domain_candidates(requested: str) -> list[int]:
@@ -125,10 +126,7 @@ def domain_candidates(requested: str) -> list[int]:
     if requested == "auto":
         ids = SAFE_DOMAINS[1:]
         return [ids[(os.getpid() + i) % len(ids)] for i in range(len(ids))]
-    if not (requested.isdigit() and int(requested) in SAFE_DOMAINS):
-        raise ArgumentError(f"domain:={requested} is not an allowed ROS domain id: auto, 0-101 or 215-232 (ids in "
-                            "between share ports with Linux's ephemeral range; Fast-DDS refuses ids above 232)")
-    return [int(requested)]
+    return [checked_domain(requested)]
 
 
 def allocate_domain(requested: str):
@@ -257,9 +255,9 @@ class Orchestrator:
         self.cfg, self.log = check_ranges(cfg), log
         domain_candidates(cfg.domain)  # a bad id is refused here, before any file is loaded
         self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
-        for name in ("attack_file", "search", "rescale"):  # aril_a's alone: elsewhere it would be silently ignored
-            if getattr(cfg, name) and self.attack != "aril_a":
-                raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:=aril_a only, got "
+        for name, user in ONE_ATTACKS_ARGUMENTS.items():  # elsewhere it would be silently ignored
+            if getattr(cfg, name) and self.attack != user:
+                raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:={user} only, got "
                                     f"attack:={self.attack}")
         if cfg.render:
             frame_size(cfg.render_size)
@@ -304,7 +302,8 @@ class Orchestrator:
             "simulator": {**common, "horizon": cfg.horizon,
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
-                         "k": cfg.k, "search": cfg.search, "expert": expert, "rescale": cfg.rescale,
+                         "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
+                         "rescale": cfg.rescale,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
             "expert": {"env": cfg.env, "expert": expert},
@@ -340,6 +339,9 @@ class Orchestrator:
             self.check_nodes()
             missing = [f"node '{name}' not ready" for name in sorted(expected - ros.ready)]
             missing += [f"publisher on {ros.node.resolve_topic_name(t)}" for t in ros.unfed_topics()]
+            if self.probes and not ros.hears_probes():
+                missing.append(f"the recorder matched with {P.PROBE_CLIENT} on "
+                               f"{ros.node.resolve_topic_name(P.OBSERVATION)}")
             if not ros.reset_client.service_is_ready():
                 missing.append(f"service {ros.node.resolve_topic_name(P.RESET_SERVICE)}")
             if not missing:
@@ -790,6 +792,12 @@ class GraphClient:
                 raise GraphError(f"intruder on {guard.what}: " + ", ".join(endpoint_text(i) for i in strangers)
                                  + ", not one of this run's nodes" + (" (an external policy publishes on action "
                                                                       "alone)" if external_policy else ""))
+
+    def hears_probes(self) -> bool:
+        """Whether the recorder knows the attacker's probe client as a publisher on observation. The attacker's
+        readiness says only that the client matched the recorder (each side discovers the other on its own), and
+        a publisher the recorder meets after admission is an intruder."""
+        return any(info.node_name == P.PROBE_CLIENT for info in self.guards[P.OBSERVATION].publishers())
 
     def unfed_topics(self) -> list[str]:
         """Step topics whose publisher is not yet matched with the recorder."""
