@@ -109,6 +109,10 @@ class RoundSpec:
     """the ROS domain of the run (a number when a node started apart, an external policy, must join it)"""
     rescale: bool = False
     """aril_a at an eps other than its file's: its perturbation scaled to eps"""
+    k: int = 0
+    """iterations of fgsm_k and spsa (0: the attack's default)"""
+    samples: int = 0
+    """spsa's directions per iteration (0: its default)"""
 
 
 class NoisyPolicy:

@@ -29,6 +29,7 @@ class EvalConfig:
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
                           "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)")
     k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)")
+    samples: int = arg(0, "spsa: random directions per iteration, each queried at +- (0: 8)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
                          "it ranks highest), the victim queried on all, the most damaging applied (0: no search)")
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
@@ -50,7 +51,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     policy = resolve_policy(cfg.policy, cfg.env, cfg.mode)
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
-                         expert=expert, steps=cfg.k or None,
+                         expert=expert, steps=cfg.k or None, samples=cfg.samples or None,
                          adversary=cfg.attack_file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()

@@ -14,6 +14,8 @@ import os
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+from .args import ArgumentError
+
 # Topic names, relative so that ``-r __ns:=/robot1`` namespaces a whole graph.
 STATE = "sim/state"  # sensor_msgs/JointState: position = true observation (what the expert labels)
 PHYSICS = "sim/physics_state"  # sensor_msgs/JointState: position = full MuJoCo integration state
@@ -108,6 +110,19 @@ def stamp_ns(global_step: int, dt: float) -> int:
 
 
 ROS_VARIABLES = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+
+
+SAFE_DOMAINS = (*range(102), *range(215, 233))
+"""ROS domain ids whose DDS ports (7400 + 250 * id and up) keep clear of Linux's ephemeral ports
+(32768-60999), as the ROS 2 docs list them; Fast-DDS refuses any id above 232 outright."""
+
+
+def checked_domain(requested: str) -> int:
+    """``domain:=requested`` as an id, or an error saying which ids are allowed and why."""
+    if not (requested.isdigit() and int(requested) in SAFE_DOMAINS):
+        raise ArgumentError(f"domain:={requested} is not an allowed ROS domain id: auto, 0-101 or 215-232 (ids in "
+                            "between share ports with Linux's ephemeral range; Fast-DDS refuses ids above 232)")
+    return int(requested)
 
 
 @contextmanager

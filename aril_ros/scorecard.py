@@ -34,6 +34,7 @@ evaluations at most.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -52,7 +53,7 @@ from .args import arg, comma_list
 from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate
 from .mcap_log import read_run
-from .protocol import ros_domain
+from .protocol import checked_domain, ros_domain
 from .policy import resolve_policy
 from .provenance import stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, WHITE_BOX, bundled_file,
@@ -63,13 +64,28 @@ from .step import EpisodeStats, episode_stats, summarise_episodes
 
 @dataclass(frozen=True)
 class Budget:
-    """How much a scorecard spends: episodes per cell and ARIL-A's training steps per mode."""
+    """How much a scorecard spends: episodes per cell, ARIL-A's training steps per mode, and SPSA^k's queries per
+    step (``1 + spsa_iterations * (2 * spsa_samples + 1)``: through the graph each one is a message to the node and
+    back, so they, not the steps, set the time of an external node's SPSA^k cells)."""
 
     episodes: int
     adversary_steps: int
+    spsa_iterations: int
+    spsa_samples: int
+
+    @property
+    def spsa_queries(self) -> int:
+        return 1 + self.spsa_iterations * (2 * self.spsa_samples + 1)
+
+    def describe(self) -> str:
+        return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode, SPSA^k "
+                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
 
 
-BUDGETS = {"quick": Budget(episodes=5, adversary_steps=200_000), "full": Budget(episodes=20, adversary_steps=1_000_000)}
+# quick: under 30 minutes against an external node on 2 cores (README, "Score your own policy"); full: the attacks'
+# own defaults (SPSA^k 5 x 8) and the paper's 1M adversary steps
+BUDGETS = {"quick": Budget(episodes=5, adversary_steps=120_000, spsa_iterations=1, spsa_samples=2),
+           "full": Budget(episodes=20, adversary_steps=1_000_000, spsa_iterations=5, spsa_samples=8)}
 SCALES = "0.25,0.5,1,2"
 """The eps sweep, as multiples of the mode's eps (the default of ``scales:=``)."""
 SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
@@ -85,8 +101,7 @@ class ScorecardConfig:
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes: sensory, physical")
     budget: str = arg("quick", f"{' or '.join(BUDGETS)}: " + "; ".join(
-        f"{name} {b.episodes} episodes per cell, ARIL-A trained {b.adversary_steps:,} steps per mode"
-        for name, b in BUDGETS.items()))
+        f"{name} {b.describe()}" for name, b in BUDGETS.items()))
     eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)")
     expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
     scales: str = arg(SCALES, "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is "
@@ -119,7 +134,8 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         results[mode] = {"eps": eps, "eps_source": "eps:=" if cfg.eps else "calibrated", "adversary": str(adversary),
                          "clean": clean, "attacks": cells, "worst": worst_case(clean, cells)}
         plot_sweep(results[mode], cfg, mode, scales, out / f"sweep-{mode}.png")
-    payload = {**stamp("aril scorecard", cfg), "budget": vars(budget), "scales": scales, "modes": results}
+    payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
+               "scales": scales, "modes": results}
     (out / "scorecard.json").write_text(json.dumps(payload, indent=1) + "\n")
     page = out / "scorecard.md"
     page.write_text(markdown(payload, cfg))
@@ -131,7 +147,8 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
 def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], list[float]]:
     """The budget, modes, attacks and scales, or an error naming the bad argument, before anything runs."""
     chosen = BUDGETS[check_name("budget", cfg.budget, tuple(BUDGETS))]
-    budget = Budget(cfg.episodes or chosen.episodes, cfg.adversary_steps or chosen.adversary_steps)
+    budget = dataclasses.replace(chosen, episodes=cfg.episodes or chosen.episodes,
+                                 adversary_steps=cfg.adversary_steps or chosen.adversary_steps)
     modes = [check_name("mode", m, ATTACKED_MODES) for m in comma_list(cfg.modes)]
     external = cfg.policy == "external"
     applicable = [a for a in SCORED_ATTACKS if not (external and a in WHITE_BOX)]
@@ -141,6 +158,7 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
             raise ValueError("policy:=external needs domain:=<the ROS_DOMAIN_ID your node runs in> (start it with "
                              "ROS_DOMAIN_ID=<n> ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), got "
                              f"domain:={cfg.domain or '(unset)'}")
+        checked_domain(cfg.domain)
         for group, name in (("aril_ros.collectors", "graph"), ("aril_ros.victims", "ros")):
             plugins.load(group, name)  # the ROS side must be installed: says so if it is not
     else:
@@ -206,7 +224,7 @@ def engine_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str
     episodes = []
     evaluate(EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
                         attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
-                        horizon=cfg.horizon), progress=episodes.append)
+                        horizon=cfg.horizon, **spsa_settings(attack, budget)), progress=episodes.append)
     return episodes
 
 
@@ -219,9 +237,16 @@ def graph_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str,
         record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
         spec = RoundSpec(env=cfg.env, mode=mode, attack=attack, eps=eps, policy="external", expert=cfg.expert,
                          attack_file=adversary, episodes=budget.episodes, seed=cfg.seed, record=record,
-                         horizon=cfg.horizon, domain=cfg.domain, rescale=bool(adversary))
+                         horizon=cfg.horizon, domain=cfg.domain, rescale=bool(adversary),
+                         **spsa_settings(attack, budget))
         logged = read_run(plugins.load("aril_ros.collectors", "graph")(spec))
     return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
+
+
+def spsa_settings(attack: str, budget: Budget) -> dict:
+    """SPSA^k's iterations and directions from the budget (the other attacks keep their own: fgsm_k's k is not
+    SPSA's)."""
+    return {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
 
 
 def paired_drop(clean: dict, attacked: dict) -> dict:
@@ -243,13 +268,12 @@ def worst_case(clean: dict, cells: dict) -> dict:
 
 
 def markdown(payload: dict, cfg: ScorecardConfig) -> str:
-    budget = payload["budget"]
+    budget = Budget(**{f.name: payload["budget"][f.name] for f in dataclasses.fields(Budget)})
     lines = [f"# Scorecard: {cfg.policy} on {cfg.env}", "",
              f"`{payload['command']}` (revision {payload['git_revision']}, {payload['created']}). Budget "
-             f"{cfg.budget}: {budget['episodes']} episodes per cell, env seeds {cfg.seed}..{cfg.seed + budget['episodes'] - 1} "
-             f"in every cell (paired); ARIL-A trained {budget['adversary_steps']:,} steps against this policy per "
-             "mode. Drop: mean of the per-episode differences from clean, in % of the clean return, with a Student-t "
-             "95% interval. Every episode is in `scorecard.json`.", ""]
+             f"{cfg.budget}: {budget.describe()}; env seeds {cfg.seed}..{cfg.seed + budget.episodes - 1} in every "
+             "cell (paired), ARIL-A trained against this policy. Drop: mean of the per-episode differences from clean, "
+             "in % of the clean return, with a Student-t 95% interval. Every episode is in `scorecard.json`.", ""]
     for mode, r in payload["modes"].items():
         worst = r["worst"]
         lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",

@@ -2,8 +2,9 @@
 
 Parameters: ``env``, ``mode`` (clean | sensory | physical), ``attack`` (none | random | fgsm |
 fgsm_k | spsa | aril_a), ``eps``, ``seed``, ``expert`` (the label of fgsm, fgsm_k, spsa and aril_a: the
-testbed's own file, loaded here), ``k`` (steps of fgsm_k and spsa; 0: the attack's default); for the
-white-box attacks ``victim`` (the attacked policy: a bundled name or a file); for aril_a ``attack_file``
+testbed's own file, loaded here), ``k`` (steps of fgsm_k and spsa; 0: the attack's default), ``samples``
+(spsa's directions per step; 0: its default); for the white-box attacks ``victim`` (the attacked policy: a
+bundled name or a file); for aril_a ``attack_file``
 (an adversary file) and ``search`` (query-time search over this many candidates; 0: none). ``eps`` 0
 takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
 :func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations.
@@ -60,8 +61,9 @@ class AttackerNode(Node):
             attack, self.layout, attack_budget(env_id, self.mode, attack, declared(self, "eps", 0.0)),
             victim=resolve_policy(victim_name, env_id, self.mode) if white_box else self.probes,
             expert=resolve_policy(expert_name, env_id) if white_box or self.probes is not None else None,
-            steps=declared(self, "k", 0) or None, adversary=declared(self, "attack_file", ""), mode=self.mode,
-            search=declared(self, "search", 0), rescale=declared(self, "rescale", False))
+            steps=declared(self, "k", 0) or None, samples=declared(self, "samples", 0) or None,
+            adversary=declared(self, "attack_file", ""), mode=self.mode, search=declared(self, "search", 0),
+            rescale=declared(self, "rescale", False))
         if self.probes is not None and not self.attack.asks_victim:  # an adversary of the state alone, no search
             self.probes.close()
             self.probes = None

@@ -22,7 +22,8 @@ def collect_round(spec, log=_to_stderr) -> Path:
     default); a failed run raises a RuntimeError naming the round's log and the cause."""
     cfg = GraphConfig(env=spec.env, mode=spec.mode, attack=spec.attack, eps=spec.eps, policy=spec.policy,
                       expert=spec.expert, attack_file=spec.attack_file, episodes=spec.episodes, seed=spec.seed,
-                      record=str(spec.record), horizon=spec.horizon, domain=spec.domain, rescale=spec.rescale)
+                      record=str(spec.record), horizon=spec.horizon, domain=spec.domain, rescale=spec.rescale,
+                      k=spec.k, samples=spec.samples)
     try:
         Orchestrator(cfg, log=log).run()
     except (ValueError, GraphError) as err:  # bad files or settings, or a node that died or stalled

@@ -4,6 +4,8 @@ stderr."""
 from __future__ import annotations
 
 import importlib.util
+import json
+import os
 import re
 import signal
 import subprocess
@@ -64,6 +66,49 @@ def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, lis
     assert summary["steps"] == len(run.tags) == 30
     np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :act_dim]))  # the node's answers, as sent
     assert (summary["queries_per_step"] > 0) == (attack == "spsa")
+
+
+LONG = os.environ.get("ARIL_LONG_TESTS") == "1"
+
+
+@pytest.mark.parametrize("shortened", [
+    dict(episodes=1, adversary_steps=2048, horizon=40, scales="1,2"),
+    pytest.param({}, marks=pytest.mark.skipif(not LONG, reason="the quick budget unshortened, ~25 min: "
+                                              "ARIL_LONG_TESTS=1 python run_tests.py -k quick_budget")),
+], ids=["shortened", "unshortened"])
+def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_path):
+    """The node as the doc gives it, scored by ``aril scorecard policy:=external budget:=quick``: both modes, every
+    black-box attack through the graph (ARIL-A trained on its answers), each cell on the same seeds; SPSA^k asks the
+    budget's queries per step as probes, and the steps are the node's answers to the observations stepped on. The
+    default suite runs the quick budget with fewer and shorter episodes and a shorter adversary training."""
+    from aril_ros.scorecard import BUDGETS, ScorecardConfig, scorecard
+
+    budget = BUDGETS["quick"]
+    domain = free_domain()
+    node = start_node(documented_node(), domain, tmp_path, "-p", "act_dim:=6")
+    try:
+        page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env="HalfCheetah-v5", budget="quick",
+                                         keep_logs=True, out=str(tmp_path / "card"), **shortened),
+                         log=lambda *a, **k: None)
+    finally:
+        stop(node)
+    assert processes_in_domain(domain) == []
+    card = json.loads((tmp_path / "card" / "scorecard.json").read_text())
+    episodes, horizon = shortened.get("episodes", budget.episodes), shortened.get("horizon", 1000)
+    seeds = [card["settings"]["seed"] + i for i in range(episodes)]
+    assert list(card["modes"]) == ["sensory", "physical"]
+    for mode, result in card["modes"].items():
+        assert set(result["attacks"]) == {"random", "spsa", "aril_a"}
+        for attack, sweep in result["attacks"].items():
+            for cell in sweep.values():
+                assert [e["env_seed"] for e in cell["episodes"]] == seeds
+                assert {e["steps"] for e in cell["episodes"]} == {horizon}
+        run = read_run(tmp_path / "card" / "logs" / f"{mode}-spsa-{result['eps']:g}.mcap")
+        assert set(run.probes_per_step) == {budget.spsa_queries}
+        np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :6]))  # no probe's answer was stepped on
+        assert (tmp_path / "card" / f"sweep-{mode}.png").stat().st_size > 0
+        assert result["worst"]["attack"] in result["attacks"]
+    assert "## physical" in page.read_text()
 
 
 def test_the_env_table_in_the_doc_is_the_generated_one():

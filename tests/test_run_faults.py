@@ -39,6 +39,7 @@ DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
     ({"search": 4}, "search:=4 is used by attack:=aril_a only, got attack:=random"),
     ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a only"),
     ({"rescale": True}, "rescale:=True is used by attack:=aril_a only"),
+    ({"samples": 4}, "samples:=4 is used by attack:=spsa only, got attack:=random"),
     ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "the adversary was trained with eps=0.3, not eps:=0.5 "
                                                            "(rescale:=true scales its perturbation)"),
 ])

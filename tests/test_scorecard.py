@@ -74,6 +74,7 @@ def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp
     ({"scales": "0.5,2"}, "scales:=0.5,2: positive multiples of eps, 1 among them"),
     ({"modes": "clean"}, "unknown mode 'clean'"),
     ({"policy": "external"}, r"policy:=external needs domain:=<the ROS_DOMAIN_ID your node runs in>"),
+    ({"policy": "external", "domain": "181"}, r"domain:=181 is not an allowed ROS domain id: auto, 0-101 or 215-232"),
     ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, "
                                                                   "aril_a"),
     ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
