@@ -11,7 +11,7 @@ from .args import arg
 from .attacks import QueryAttack, make_attack
 from .envs import HORIZON, layout_of
 from .policy import resolve_policy
-from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, attack_for_mode
+from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
 
@@ -25,7 +25,8 @@ class EvalConfig:
                                 "the one of mode:=) or a policy file path")
     expert: str = arg("expert", "expert that labels the true states: a bundled name or a file path")
     mode: str = arg("clean", f"one of {', '.join(MODES)}")
-    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
+    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean; attacked, the strongest bundled "
+                          "for the policy: the ARIL-A trained against it, random where none is bundled)")
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
                           "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)")
     k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)")
@@ -46,13 +47,14 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     :class:`aril_ros.step.EpisodeStats` as it ends. Returns the summary (mean/std return, mean expert
     loss, per-episode returns)."""
     torch.set_num_threads(cfg.threads)
-    attack_name = attack_for_mode(cfg.mode, cfg.attack)
+    choice = choose_attack(cfg.env, cfg.mode, cfg.policy, cfg.attack, cfg.attack_file)
+    attack_name = choice.name
     layout = layout_of(cfg.env)  # an unknown or non-MuJoCo id is the first thing to report
     policy = resolve_policy(cfg.policy, cfg.env, cfg.mode)
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k or None, samples=cfg.samples or None,
-                         adversary=cfg.attack_file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
+                         adversary=choice.file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     episodes = [EpisodeStats(e) for e in range(cfg.episodes)]

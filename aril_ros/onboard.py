@@ -69,7 +69,7 @@ def onboard(cfg: OnboardConfig, log=print) -> dict:
                                 seed=seeds.USER))
     summary = {"env": cfg.env, "expert": str(expert), "dagger": str(learner), "eps": eps,
                "expert_return": {"mean": final["mean_return"], "std": final["std_return"],
-                                 "episodes": cfg.final_episodes, "seeds": f"{seeds.USER}..{cfg.final_episodes - 1}"},
+                                 "episodes": cfg.final_episodes, "seeds": f"{seeds.USER}..{seeds.USER + cfg.final_episodes - 1}"},
                "seconds": timings}
     (home / "onboard.json").write_text(json.dumps(summary, indent=1) + "\n")
     log(f"[onboard {cfg.env}] done: expert {final['mean_return']:.1f} ± {final['std_return']:.1f} over "

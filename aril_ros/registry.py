@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -156,8 +157,37 @@ def calibrated_eps(env_id: str, mode: str, calibration: str | Path | None = None
                      f"`aril train-expert env:={env_id}` first)")
 
 
+@dataclass(frozen=True)
+class AttackChoice:
+    """The attack a run makes, its adversary file (aril_a; empty: the attack's own default), and why, when the
+    caller named none."""
+
+    name: str
+    file: str = ""
+    why: str = ""
+
+
+def choose_attack(env_id: str, mode: str, policy: str, attack: str = "", attack_file: str = "") -> AttackChoice:
+    """The attack of a run of ``policy`` (a bundled name, ``bundled``, a file or ``external``) in ``mode``: the one
+    named, or, unnamed in an attacked mode, the strongest bundled for the policy: ARIL-A trained against it (the
+    learned black-box adversary) where one is bundled, random noise where none is (the expert, a file of the user's,
+    an external node)."""
+    if attack or attack_file or mode == "clean":  # an adversary file alone names no attack: refused as before
+        return AttackChoice(attack_for_mode(mode, attack), attack_file)
+    check_name("mode", mode, MODES)
+    learner = DEFAULT_POLICY if policy == "bundled" else policy
+    adversary = adversary_path(env_id, mode, learner) if learner in DEFENSES else None
+    if adversary is not None and adversary.is_file():
+        return AttackChoice("aril_a", str(adversary), f"the default: the ARIL-A trained against {DEFENSES[learner]}, "
+                                                      "bundled; attack:=random for noise")
+    return AttackChoice("random", "", f"the default: no adversary is bundled against {policy} on {env_id} {mode}, "
+                                      "so random noise; aril train-adversary victim:=<it> makes one (attack:=aril_a "
+                                      "attack_file:=...), attack:=spsa queries it")
+
+
 def attack_for_mode(mode: str, attack: str = "") -> str:
-    """The attack a mode runs: ``attack``, or when unset none (clean) or random; clean runs no other."""
+    """The attack a mode runs: ``attack``, or when unset none (clean) or random; clean runs no other (a run that
+    knows its policy chooses with :func:`choose_attack`)."""
     check_name("mode", mode, MODES)
     name = check_name("attack", attack or ("none" if mode == "clean" else "random"), ATTACKS)
     if mode == "clean" and name != "none":

@@ -40,7 +40,7 @@ from aril_ros.policy import resolve_policy
 from aril_ros.protocol import SAFE_DOMAINS, ProbeTag, StepTag, checked_domain, ros_domain
 from aril_ros.provenance import git_revision
 from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MAX_EPS,
-                               MODES, PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, attack_for_mode)
+                               MODES, PER_MODE_POLICIES, WHITE_BOX, adversary_path, attack_budget, choose_attack)
 from aril_ros.render import frame_size
 from aril_ros.step import EpisodeStats, episode_seed, missing_topics, summarise_episodes
 
@@ -54,7 +54,8 @@ class GraphConfig:
 
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean, random otherwise)")
+    attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean; attacked, the strongest bundled "
+                          "for the policy: the ARIL-A trained against it, random where none is bundled)")
     eps: float = arg(0.0, f"L-infinity bound of the perturbation on the zero-order entries, at most {MAX_EPS} "
                           "(0: the calibrated one for env and mode, bundled with aril_ros; aril_a: its adversary's)")
     k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)", low=0, high=1000)
@@ -63,6 +64,8 @@ class GraphConfig:
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
+    baseline: bool = arg(True, "run_graph.py, an attacked mode: the clean return of the same episodes beside the "
+                               "attacked one (the engine's; an external node's through a clean run of the graph)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its adversary's: scale its perturbation by eps / its eps "
                                "(an eps sweep with one adversary)")
     episodes: int = arg(2, "episodes to run (env seeds seed, seed+1, ...)", low=1, high=100_000)
@@ -254,7 +257,9 @@ class Orchestrator:
     def __init__(self, cfg: GraphConfig, log=print):
         self.cfg, self.log = check_ranges(cfg), log
         domain_candidates(cfg.domain)  # a bad id is refused here, before any file is loaded
-        self.attack = attack_for_mode(cfg.mode, cfg.attack)  # a bad mode or attack: a ValueError naming both
+        # a bad mode or attack: a ValueError naming both; none named: the strongest bundled for the policy
+        self.choice = choose_attack(cfg.env, cfg.mode, cfg.policy, cfg.attack, cfg.attack_file)
+        self.attack = self.choice.name
         for name, user in ONE_ATTACKS_ARGUMENTS.items():  # elsewhere it would be silently ignored
             if getattr(cfg, name) and self.attack != user:
                 raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:={user} only, got "
@@ -269,7 +274,7 @@ class Orchestrator:
         self.eps = attack_budget(cfg.env, cfg.mode, self.attack, cfg.eps)
         adversary = None
         if self.attack == "aril_a":  # its file's eps; a missing or mismatched file is reported before anything starts
-            adversary = load_adversary(cfg.attack_file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode)
+            adversary = load_adversary(self.choice.file or adversary_path(cfg.env, cfg.mode), cfg.env, cfg.mode)
             if cfg.eps and abs(cfg.eps - adversary.eps) > 1e-12 and not cfg.rescale:
                 raise ValueError(f"the adversary was trained with eps={adversary.eps}, not eps:={cfg.eps} "
                                  "(rescale:=true scales its perturbation)")
@@ -305,7 +310,7 @@ class Orchestrator:
                          "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
                          "rescale": cfg.rescale,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
-                         **({"attack_file": str(Path(cfg.attack_file).resolve())} if cfg.attack_file else {})},
+                         **({"attack_file": str(Path(self.choice.file).resolve())} if self.choice.file else {})},
             "expert": {"env": cfg.env, "expert": expert},
         }
         if cfg.policy != "external":
@@ -415,8 +420,8 @@ class Orchestrator:
     def run_metadata(self) -> dict:
         cfg = self.cfg
         return {
-            "env": cfg.env, "mode": cfg.mode, "attack": self.attack, "eps": self.eps, "seed": cfg.seed,
-            "episodes": cfg.episodes, "horizon": cfg.horizon, "policy": cfg.policy, "expert": cfg.expert,
+            "env": cfg.env, "mode": cfg.mode, "attack": self.attack, "attack_file": self.choice.file, "eps": self.eps,
+            "seed": cfg.seed, "episodes": cfg.episodes, "horizon": cfg.horizon, "policy": cfg.policy, "expert": cfg.expert,
             "policy_provenance": self.policy_meta.provenance if self.policy_meta else "external",
             "expert_provenance": self.expert_meta.provenance, "obs_names": list(self.layout.names),
             "zero_order": self.layout.zero_order_mask.tolist(),
@@ -435,7 +440,7 @@ class Orchestrator:
 
     def _run(self, domain: int, env: dict) -> dict:
         self.log(f"[run_graph] {self.cfg.env} mode={self.cfg.mode} attack={self.attack} eps={self.eps} "
-                 f"domain={domain} logs={self.log_dir}"
+                 + (f"({self.choice.why}) " if self.choice.why else "") + f"domain={domain} logs={self.log_dir}"
                  + (f" (the external policy node: answer once action has {self.action_listeners} subscribers)"
                     if self.cfg.policy == "external" else ""), file=sys.stderr)
         writer = None
