@@ -1,8 +1,12 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
 
-from aril_ros.policy import BLOCK_ROWS, PolicyFileError, load_policy, save_policy
+import aril_ros
+
+from aril_ros.policy import BLOCK_ROWS, PolicyFileError, in_blocks, load_policy, save_policy
 
 
 def test_round_trip_keeps_actions_and_meta(tmp_path, make_policy):
@@ -32,6 +36,22 @@ def test_actions_do_not_depend_on_batch_composition(make_policy):
     whole = policy.act(obs)
     one_by_one = np.stack([policy.act(o) for o in obs])
     np.testing.assert_array_equal(whole, one_by_one)
+
+
+BUNDLED_POLICY_FILES = sorted(p for p in (Path(aril_ros.__file__).parent / "data").glob("*/*.pt")
+                              if "adversary" not in p.parent.name)
+
+
+@pytest.mark.parametrize("path", BUNDLED_POLICY_FILES, ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_act_is_each_blocks_own_forward_bit_for_bit(path):
+    """act() multiplies all blocks in one call; each block's rows must be what the block alone gives (the
+    promise of BLOCK_ROWS, and what the trajectories already recorded were made with)."""
+    policy = load_policy(path)
+    obs = np.random.default_rng(0).normal(scale=2.0, size=(3 * BLOCK_ROWS + 5, policy.meta.obs_dim))
+    blocks, n = in_blocks(obs)
+    with torch.no_grad():
+        block_by_block = torch.cat([policy(block) for block in blocks])[:n].double().numpy()
+    np.testing.assert_array_equal(policy.act(obs), block_by_block)
 
 
 def test_mismatched_env_is_named(tmp_path, make_policy):
