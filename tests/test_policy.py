@@ -5,8 +5,13 @@ import pytest
 import torch
 
 import aril_ros
-
-from aril_ros.policy import BLOCK_ROWS, PolicyFileError, in_blocks, load_policy, save_policy
+from aril_ros.policy import (
+    BLOCK_ROWS,
+    PolicyFileError,
+    in_blocks,
+    load_policy,
+    save_policy,
+)
 
 
 def test_round_trip_keeps_actions_and_meta(tmp_path, make_policy):
