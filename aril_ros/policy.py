@@ -142,7 +142,7 @@ class MLPPolicy(nn.Module):
         return x
 
     def squash(self, out: torch.Tensor) -> torch.Tensor:
-        """The net's output into the action bounds."""
+        """The net's output into the action bounds (elementwise, so any shape)."""
         if self.meta.squash == "tanh":
             return self.action_low + (torch.tanh(out) + 1.0) * 0.5 * self.action_range
         return torch.maximum(torch.minimum(out, self.action_high), self.action_low)
@@ -151,16 +151,16 @@ class MLPPolicy(nn.Module):
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic actions (float64) for a batch ``[n, obs_dim]`` or a single observation.
 
-        Batch-invariant: row i of the result does not depend on the other rows (see BLOCK_ROWS).
+        Batch-invariant: row i of the result does not depend on the other rows (see BLOCK_ROWS). The products
+        run for all blocks in one call (:func:`blockwise_linear`); the elementwise steps on all rows at once.
         """
         obs = np.asarray(obs)
         blocks, n = stacked_blocks(np.atleast_2d(obs))
         x = self.normalise(blocks)
         for layer in self.net:
             x = blockwise_linear(x, layer) if isinstance(layer, nn.Linear) else layer(x)
-        # squashed block by block: tanh's vectorised and scalar loops round differently, and which elements
-        # take which depends on the length of the tensor it is given
-        actions = torch.cat([self.squash(block) for block in x]).numpy()[:n].astype(np.float64)
+        x = self.squash(x)
+        actions = x.reshape(-1, x.shape[-1])[:n].numpy().astype(np.float64)
         return actions[0] if obs.ndim == 1 else actions
 
     def loss_gradient(self, obs: np.ndarray, target: np.ndarray) -> np.ndarray:

@@ -7,9 +7,11 @@ import torch
 import aril_ros
 from aril_ros.policy import (
     BLOCK_ROWS,
+    MLPPolicy,
     PolicyFileError,
     in_blocks,
     load_policy,
+    meta_for_env,
     save_policy,
 )
 
@@ -35,9 +37,13 @@ def test_actions_respect_bounds_and_single_observation(make_policy):
     np.testing.assert_array_equal(policy.act(obs[2]), actions[2])
 
 
-def test_actions_do_not_depend_on_batch_composition(make_policy):
-    policy = make_policy("Ant-v5", hidden=(256, 256))
-    obs = np.random.default_rng(0).normal(size=(3 * BLOCK_ROWS + 5, 105))
+@pytest.mark.parametrize("env_id, hidden, activation", [("Ant-v5", (256, 256), "relu"),
+                                                      ("Hopper-v5", (5, 7), "tanh"), ("Swimmer-v5", (33, 47), "tanh")])
+def test_actions_do_not_depend_on_batch_composition(env_id, hidden, activation):
+    """Widths of every kind: the blocks share one matrix-product call and every elementwise step."""
+    torch.manual_seed(0)
+    policy = MLPPolicy(meta_for_env(env_id, hidden=list(hidden), activation=activation)).eval()
+    obs = np.random.default_rng(0).normal(scale=3.0, size=(3 * BLOCK_ROWS + 5, policy.meta.obs_dim))
     whole = policy.act(obs)
     one_by_one = np.stack([policy.act(o) for o in obs])
     np.testing.assert_array_equal(whole, one_by_one)
