@@ -83,7 +83,10 @@ class ReportConfig:
     sweep_attacks: str = arg("", "attacks of the eps sweeps")
     adversary_steps: int = arg(1_000_000, "ARIL-A steps against each defense and seed that has no adversary yet")
     horizon: int = arg(HORIZON, f"steps per episode (the paper's {HORIZON}; fewer only for a smoke test)")
-    workers: int = arg(2, "trainings and evaluations run side by side (one thread each)")
+    workers: int = arg(2, "CPUs of the local Ray the trainings and evaluations run on as tasks, one CPU each (1: one "
+                          "after the other in this process, without Ray)")
+    address: str = arg("", "run the tasks on this Ray cluster instead (ray://<head>:10001, or auto for the one "
+                           "this machine has joined; workers:= is then ignored)")
     perf: bool = arg(True, "run the benchmarks (the performance section)")
     bench_steps: int = arg(0, "steps per engine and adversary benchmark")
     render: bool = arg(False, "render GIFs of an attack (MuJoCo offscreen on the CPU) for render_envs")
@@ -149,7 +152,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
 
     # 2. each defense's policy and the ARIL-A against it, per env, mode and training seed
     eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
-    store = Artifacts(cfg.work_dir, cfg.workers, cfg.adversary_steps, log)
+    store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
     policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
                                for defense in PAPER_DEFENSES for seed in training_seeds])
     adversaries = store.adversaries(policies, eps)
@@ -157,7 +160,8 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     # 3. the evaluations, from the cache or run
     plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
                            scales_of(cfg), cfg.horizon)
-    returns, counts = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers, cfg.fresh, log)
+    returns, counts = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers, cfg.address,
+                               cfg.fresh, log)
     evals = by_cell(plan, returns)
 
     # 4. tables, figures, the JSON and the text

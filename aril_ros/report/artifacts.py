@@ -12,7 +12,8 @@ from ..args import command_line
 from ..policy import load_weights
 from ..provenance import settings_of
 from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file
-from .jobs import FAILURES, in_processes
+from ..sweep import Produced, Shipped, run_tasks
+from .jobs import FAILURES
 
 
 def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir: Path) -> Path:
@@ -38,11 +39,12 @@ def train_seed_adversary(env: str, mode: str, policy: Path, eps: float, steps: i
 
 class Artifacts:
     """Policy and adversary files per (defense, env, mode, seed): the bundled ones for seed 0, trained
-    into ``work_dir`` otherwise, ``workers`` at a time. A file that cannot be had is recorded in
-    ``missing`` with the reason."""
+    into ``work_dir`` otherwise, as tasks (``workers`` CPUs of a local Ray, or the cluster at ``address``). A file
+    that cannot be had is recorded in ``missing`` with the reason."""
 
-    def __init__(self, work_dir: str | Path, workers: int, adversary_steps: int, log):
-        self.work, self.workers, self.adversary_steps, self.log = Path(work_dir), workers, adversary_steps, log
+    def __init__(self, work_dir: str | Path, workers: int, address: str, adversary_steps: int, log):
+        self.work, self.workers, self.address = Path(work_dir), workers, address
+        self.adversary_steps, self.log = adversary_steps, log
         self.missing: dict[tuple, str] = {}
 
     def _prepare(self, kind: str, wanted: dict[tuple, Path | Exception], fn, calls: dict[Path, tuple]) -> dict:
@@ -51,8 +53,9 @@ class Artifacts:
         made = {out: out for out in calls if out.exists()}
         todo = [out for out in calls if out not in made]
         if todo:
-            self.log(f"[report] {len(todo)} {kind} files to train, {self.workers} at a time", flush=True)
-        for index, result in in_processes(fn, [calls[out] for out in todo], self.workers):
+            self.log(f"[report] {len(todo)} {kind} files to train", flush=True)
+        for index, result in run_tasks(fn, [calls[out] for out in todo], self.workers, self.address, failures=FAILURES,
+                                       label=f"{kind} trainings", log=self.log):
             made[todo[index]] = result
         files = {}
         for combo, file in wanted.items():
@@ -79,7 +82,7 @@ class Artifacts:
             name = f"{defense}-{env}{f'-{mode}' if defense in PER_MODE_POLICIES else ''}-seed{seed}"
             out = self.work / "policies" / f"{name}.pt"
             wanted[(defense, env, mode, seed)] = out
-            calls.setdefault(out, (defense, env, mode, seed, out, self.work / "learners" / name))
+            calls.setdefault(out, (defense, env, mode, seed, Produced(out), self.work / "learners" / name))
         return self._prepare("policy", wanted, train_seed, calls)
 
     def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
@@ -94,7 +97,7 @@ class Artifacts:
                 continue
             out = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
             wanted[(defense, env, mode, seed)] = out
-            calls[out] = (env, mode, policy, eps[env, mode], self.adversary_steps, out)
+            calls[out] = (env, mode, Shipped(policy), eps[env, mode], self.adversary_steps, Produced(out))
         return self._prepare("adversary", wanted, train_seed_adversary, calls)
 
 

@@ -1,12 +1,10 @@
-"""What the report evaluates and how: the evaluation plan, a process pool, and the cache of
-evaluations keyed by their arguments and the digests of the files they read."""
+"""What the report evaluates and how: the evaluation plan, its evaluations as tasks (:mod:`aril_ros.sweep`: Ray,
+local or a cluster), and the cache of evaluations keyed by their arguments and the digests of the files they read."""
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import hashlib
 import json
-import multiprocessing
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,28 +14,10 @@ import numpy as np
 from .. import seeds
 from ..policy import PolicyFileError
 from ..registry import THREATS
+from ..sweep import Shipped, run_tasks
 
 FAILURES = (PolicyFileError, ValueError, RuntimeError, OSError)
 """Recorded as a missing file or a failed benchmark, not raised."""
-
-
-def in_processes(fn, calls: list[tuple], workers: int):
-    """``fn(*call)`` for each call, ``workers`` at a time in spawned processes (in this one for a single
-    worker); yields ``(index, result or the FAILURES exception raised)`` as each finishes."""
-    if workers == 1:
-        for index, call in enumerate(calls):
-            try:
-                yield index, fn(*call)
-            except FAILURES as err:
-                yield index, err
-        return
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(fn, *call): index for index, call in enumerate(calls)}
-        for future in concurrent.futures.as_completed(futures):
-            err = future.exception()
-            if err is not None and not isinstance(err, FAILURES):
-                raise err
-            yield futures[future], err if err is not None else future.result()
 
 
 def digest(path: Path) -> str:
@@ -92,10 +72,17 @@ def job_key(job: dict) -> str:
     return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
 
 
-def run_jobs(jobs: list[dict], cache: Path, workers: int, fresh: bool, log) -> tuple[list[list[float]], dict]:
-    """Per-episode returns of each evaluation, from ``cache`` or computed ``workers`` at a time, and how
-    many distinct evaluations were run and read from the cache. Equal jobs (a mode-independent policy's
-    clean run, asked for by both modes) run once."""
+def shipped_job(job: dict) -> dict:
+    """``job`` with the files it reads marked to travel with its task (a cluster's nodes share no filesystem)."""
+    return {**job, **{k: Shipped(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}}
+
+
+def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
+             ) -> tuple[list[list[float]], dict]:
+    """Per-episode returns of each evaluation, from ``cache`` or computed as tasks (``workers`` CPUs of a local
+    Ray, or the cluster at ``address``), and how many distinct evaluations were run and read from the cache. Each
+    result is cached as it comes back, so a killed report resumes. Equal jobs (a mode-independent policy's clean
+    run, asked for by both modes) run once."""
     cache.mkdir(parents=True, exist_ok=True)
     keys = [job_key(job) for job in jobs]
     done: dict[str, list[float]] = {}
@@ -110,9 +97,9 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, fresh: bool, log) -> t
     log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
     started = time.time()
     todo_keys = list(todo)
-    for n, (index, returns) in enumerate(in_processes(_evaluate_job, [(todo[k],) for k in todo_keys], workers), 1):
-        if isinstance(returns, Exception):
-            raise returns
+    calls = [(shipped_job(todo[k]),) for k in todo_keys]
+    for n, (index, returns) in enumerate(run_tasks(_evaluate_job, calls, workers, address, label="evaluations",
+                                                   log=log), 1):
         key = todo_keys[index]
         job, done[key] = todo[key], returns
         (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))

@@ -1,0 +1,219 @@
+"""Sweeps on Ray: the jobs of a sweep (the report's trainings and evaluations) as Ray tasks.
+
+    run_tasks(fn, calls, workers=2)                         # an embedded local Ray with ``workers`` CPUs
+    run_tasks(fn, calls, address="ray://head:10001")        # an existing cluster (or "auto": the local one)
+    run_tasks(fn, calls, workers=1)                         # in this process, one after the other, no Ray
+
+Each call is one task declaring one CPU (``cpus``). Nothing is shared through a filesystem: a file a task reads
+is marked :class:`Shipped` in its call and travels by content (put once per digest in Ray's object store, written
+on the worker's node under its digest, so a node holds each file once), and a file a task makes is marked
+:class:`Produced`: the task writes it on its node and its bytes travel back to the driver, which writes them where
+the call said. Results come back to the driver as they finish; the caller keeps them (the report's cache), so
+killing the driver and running the same command again reruns only what had not finished. Ray is an extra
+(``pip install -e .[cluster]``, ``ray==2.60``): the sweeps install it on first use, the quick start never does.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+RAY = "ray==2.60.*"
+"""What the ``cluster`` extra of pyproject.toml installs (kept equal to it)."""
+
+
+@dataclass(frozen=True)
+class Shipped:
+    """A file a task reads (in a call: replaced by the path of its copy on the task's node)."""
+
+    path: Path
+
+
+@dataclass(frozen=True)
+class Produced:
+    """A file a task writes (in a call: replaced by a path on the task's node; the driver gets the bytes)."""
+
+    path: Path
+
+
+@dataclass(frozen=True)
+class _Content:
+    digest: str
+    suffix: str
+    ref: object  # the bytes, as an ObjectRef in Ray's store
+
+
+def digest_of(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def node_copy(digest: str, suffix: str, data) -> Path:
+    """The file with these bytes on this node: under its digest in a node-local store, written once, atomically."""
+    store = Path(tempfile.gettempdir()) / "aril_ros-files"
+    path = store / f"{digest}{suffix}"
+    if not path.exists():
+        store.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
+        partial.write_bytes(data() if callable(data) else data)
+        os.replace(partial, path)
+    return path
+
+
+def _map(value, leaf):
+    """``value`` with every Shipped / Produced / _Content in it (tuples, lists, dicts) replaced by ``leaf(it)``."""
+    if isinstance(value, (Shipped, Produced, _Content)):
+        return leaf(value)
+    if isinstance(value, (tuple, list)):
+        return type(value)(_map(v, leaf) for v in value)
+    if isinstance(value, dict):
+        return {k: _map(v, leaf) for k, v in value.items()}
+    return value
+
+
+def _in_place(call):
+    """A call for this process: each marked file is its own path."""
+    return _map(call, lambda marked: marked.path)
+
+
+def _task(fn, call):
+    """What runs on a worker: materialise the shipped files, run, return the result and the produced files' bytes."""
+    import ray
+
+    made = Path(tempfile.mkdtemp(prefix="aril_ros-task-"))
+    local = {}
+
+    def leaf(marked):
+        if isinstance(marked, _Content):
+            return node_copy(marked.digest, marked.suffix, lambda: ray.get(marked.ref))
+        local[str(marked.path)] = made / Path(marked.path).name  # a Produced file, made here
+        return local[str(marked.path)]
+
+    result = fn(*_map(call, leaf))
+    produced = {original: Path(path).read_bytes() for original, path in local.items()}
+    # a result naming a produced file names the driver's copy of it
+    return _map_paths(result, {str(v): Path(k) for k, v in local.items()}), produced
+
+
+def _map_paths(value, renamed: dict[str, Path]):
+    if isinstance(value, (str, Path)) and str(value) in renamed:
+        return renamed[str(value)] if isinstance(value, Path) else str(renamed[str(value)])
+    if isinstance(value, (tuple, list)):
+        return type(value)(_map_paths(v, renamed) for v in value)
+    if isinstance(value, dict):
+        return {k: _map_paths(v, renamed) for k, v in value.items()}
+    return value
+
+
+def ensure_ray():
+    """``ray``, installed into this Python first if it is missing (the ``cluster`` extra, on first use)."""
+    try:
+        import ray
+    except ModuleNotFoundError:
+        print(f"[sweep] installing {RAY} (the cluster extra; once)", file=sys.stderr, flush=True)
+        subprocess.run([sys.executable, "-m", "pip", "install", "--disable-pip-version-check", "-q", RAY], check=True)
+        importlib.invalidate_caches()  # the import system listed site-packages before ray was in it
+        import ray
+    return ray
+
+
+def connect(address: str, workers: int):
+    """Ray, connected: to the cluster at ``address``, or an embedded local one with ``workers`` CPUs. Returns
+    ``(ray, started)``: ``started`` when this call started it (then the caller shuts it down)."""
+    ray = ensure_ray()
+    if ray.is_initialized():
+        return ray, False
+    if address:
+        ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+    else:
+        ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    return ray, True
+
+
+class Progress:
+    """``[sweep] label: done/total, running, failed, ETA`` lines, at most every ``every`` seconds and at the end."""
+
+    def __init__(self, label: str, total: int, parallel: int, log, every: float = 10.0):
+        self.label, self.total, self.parallel, self.log, self.every = label, total, max(parallel, 1), log, every
+        self.done = self.failed = 0
+        self.started = self.last = time.monotonic()
+
+    def line(self) -> str:
+        elapsed = time.monotonic() - self.started
+        left = self.total - self.done - self.failed
+        eta = elapsed / (self.done + self.failed) * left if self.done + self.failed else float("nan")
+        running = min(left, self.parallel)
+        return (f"[sweep] {self.label}: {self.done}/{self.total} done, {running} running, {self.failed} failed, "
+                f"{elapsed:.0f}s elapsed, ETA {eta:.0f}s")
+
+    def finished(self, ok: bool) -> None:
+        self.done += ok
+        self.failed += not ok
+        now = time.monotonic()
+        if now - self.last >= self.every or self.done + self.failed == self.total:
+            self.last = now
+            self.log(self.line(), flush=True)
+
+
+def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus: float = 1, failures=(),
+              label: str = "tasks", log=print) -> Iterator[tuple[int, object]]:
+    """``fn(*call)`` for each call, as Ray tasks of ``cpus`` CPUs each (in this process, in order, when ``workers``
+    is 1 and no ``address`` is given); yields ``(index, result)`` as each finishes, the result being the exception
+    when ``fn`` raised one of ``failures`` (any other is raised). Produced files are at their paths when yielded."""
+    progress = Progress(label, len(calls), workers, log)
+    if not calls:
+        return
+    if workers == 1 and not address:
+        for index, call in enumerate(calls):
+            try:
+                result = fn(*_in_place(call))
+            except failures as err:
+                result = err
+            progress.finished(not isinstance(result, Exception))
+            yield index, result
+        return
+    ray, started = connect(address, workers)
+    try:
+        progress.parallel = int(ray.cluster_resources().get("CPU", workers) // cpus)
+        contents: dict[Path, _Content] = {}
+
+        def ship(marked):
+            if isinstance(marked, Produced):
+                return marked
+            if marked.path not in contents:
+                data = Path(marked.path).read_bytes()
+                contents[marked.path] = _Content(digest_of(data), Path(marked.path).suffix, ray.put(data))
+            return contents[marked.path]
+
+        remote = ray.remote(num_cpus=cpus, max_retries=0)(_task)
+        pending = {}
+        for index, call in enumerate(calls):
+            pending[remote.remote(fn, _map(call, ship))] = index
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            index = pending.pop(ready[0])
+            try:
+                result, produced = ray.get(ready[0])
+            except ray.exceptions.RayTaskError as err:
+                cause = err.as_instanceof_cause()
+                if not isinstance(cause, failures):
+                    raise cause from None
+                progress.finished(False)
+                yield index, cause
+                continue
+            for original, data in produced.items():
+                Path(original).parent.mkdir(parents=True, exist_ok=True)
+                partial = Path(f"{original}.partial")
+                partial.write_bytes(data)
+                os.replace(partial, original)
+            progress.finished(True)
+            yield index, result
+    finally:
+        if started:
+            ray.shutdown()

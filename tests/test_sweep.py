@@ -1,0 +1,89 @@
+"""Sweeps as Ray tasks (aril_ros.sweep): in this process, on a local Ray, and on a two-node cluster on this machine."""
+import math
+import operator
+from pathlib import Path
+
+import pytest
+
+from aril_ros.registry import adversary_path, bundled_file
+from aril_ros.report.jobs import FAILURES, run_jobs
+from aril_ros.sweep import RAY, Produced, Shipped, connect, ensure_ray, run_tasks
+
+
+def quiet(*args, **kwargs):
+    pass
+
+
+def where_and_what(source: Path, out: Path) -> tuple[str, str, str]:
+    """A task reading one file and writing another: the node it ran on and the paths it was given."""
+    import ray
+
+    out.write_text(source.read_text().upper())
+    return ray.get_runtime_context().get_node_id(), str(source), str(out)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_failures_named_by_the_caller_come_back_and_others_are_raised(workers):
+    ray = connect("", workers)[0] if workers > 1 else None  # one embedded local Ray for both sweeps
+    try:
+        results = dict(run_tasks(math.sqrt, [(4.0,), (-1.0,), (9.0,)], workers, failures=FAILURES, log=quiet))
+        assert results[0] == 2.0 and results[2] == 3.0 and isinstance(results[1], ValueError)  # a missing cell
+        with pytest.raises(ZeroDivisionError):  # a bug, not a missing file: stops the sweep
+            list(run_tasks(operator.truediv, [(1, 0)], workers, log=quiet))
+    finally:
+        if ray is not None:
+            ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def two_nodes():
+    """A Ray cluster of two nodes, one CPU each, on this machine, connected for the module's tests."""
+    ray = ensure_ray()  # CI's first use installs it, as a user's first sweep does
+    from ray.cluster_utils import Cluster
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    cluster.add_node(num_cpus=1)
+    ray.init(address=cluster.address, logging_level="ERROR", log_to_driver=False)
+    yield cluster
+    ray.shutdown()
+    cluster.shutdown()
+
+
+def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path):
+    sources = []
+    for i in range(6):
+        sources.append(tmp_path / f"in{i}.txt")
+        sources[-1].write_text(f"file {i}")
+    calls = [(Shipped(s), Produced(tmp_path / "out" / f"out{i}.txt")) for i, s in enumerate(sources)]
+    lines = []
+    results = dict(run_tasks(where_and_what, calls, address=two_nodes.address, label="files",
+                             log=lambda line, **_: lines.append(line)))
+    assert len({node for node, _, _ in results.values()}) == 2, "every task ran on one node"
+    for i, (_, seen_source, seen_out) in results.items():
+        assert seen_source != str(sources[i])  # the task read its node's copy, found by the file's digest
+        assert Path(seen_out) == tmp_path / "out" / f"out{i}.txt"  # a result naming a made file names the driver's
+        assert (tmp_path / "out" / f"out{i}.txt").read_text() == f"FILE {i}"
+    assert lines[-1].startswith("[sweep] files: 6/6 done, 0 running, 0 failed")
+
+
+def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_nodes, tmp_path):
+    env, mode = "Swimmer-v5", "sensory"
+    policy, adversary = bundled_file("dagger", env), adversary_path(env, mode, "dagger")
+    jobs = [{"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode, "attack": attack,
+             "eps": 0.3, "attack_file": str(adversary) if attack == "aril_a" else "", "rescale": attack == "aril_a",
+             "episodes": 2, "seed": 3000 + i, "horizon": 40}
+            for i, attack in enumerate(["none", "random", "fgsm", "aril_a", "random", "none"])]
+    on_cluster, counts = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
+    in_process, _ = run_jobs(jobs, tmp_path / "serial", 1, "", False, quiet)
+    assert counts == {"run": 6, "cached": 0}
+    assert on_cluster == in_process
+    # the cache is the driver's: the same sweep again runs nothing
+    again, counts = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
+    assert again == on_cluster and counts == {"run": 0, "cached": 6}
+
+
+def test_the_cluster_extra_is_what_the_sweeps_install():
+    import tomllib
+
+    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert pyproject["project"]["optional-dependencies"]["cluster"] == [RAY]
