@@ -382,8 +382,12 @@ class PhysicsPool:
 
 
 def physics_threads() -> int:
-    """The cores this process may run on: the default size of a :class:`PhysicsPool`."""
-    return len(os.sched_getaffinity(0))
+    """The default size of a :class:`PhysicsPool`: the cores this process may run on, or fewer where
+    ``OMP_NUM_THREADS`` caps a process's threads (a Ray task's: its CPUs, so two tasks on two cores do not run
+    four physics threads)."""
+    cores = len(os.sched_getaffinity(0))
+    cap = os.environ.get("OMP_NUM_THREADS", "")
+    return min(cores, int(cap)) if cap.isdigit() and int(cap) > 0 else cores
 
 
 SERIAL = PhysicsPool(1)

@@ -87,3 +87,14 @@ def test_the_cluster_extra_is_what_the_sweeps_install():
 
     pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
     assert pyproject["project"]["optional-dependencies"]["cluster"] == [RAY]
+
+
+def test_a_task_runs_as_many_physics_threads_as_it_has_cpus(monkeypatch):
+    import os
+
+    from aril_ros.envs import physics_threads
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    assert physics_threads() == len(os.sched_getaffinity(0))
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # what Ray sets in a task of one CPU
+    assert physics_threads() == 1
