@@ -1,7 +1,7 @@
 """Sweeps on Ray: the jobs of a sweep (the report's trainings and evaluations) as Ray tasks.
 
     run_tasks(fn, calls, workers=2)                         # an embedded local Ray with ``workers`` CPUs
-    run_tasks(fn, calls, address="ray://head:10001")        # an existing cluster (or "auto": the local one)
+    run_tasks(fn, calls, address="10.0.0.5:6379")           # a running cluster (or "auto": the one this node joined)
     run_tasks(fn, calls, workers=1)                         # in this process, one after the other, no Ray
 
 Each call is one task declaring one CPU (``cpus``). Nothing is shared through a filesystem: a file a task reads

@@ -1,7 +1,7 @@
 """Sweep speed-up: one evaluation sweep run in this process, then as Ray tasks, its wall time each and the ratio.
 
     python -m aril_ros.benchmarks.sweep env:=Swimmer-v5 workers:=2
-    python -m aril_ros.benchmarks.sweep address:=ray://<head>:10001     # the same sweep on a cluster
+    python -m aril_ros.benchmarks.sweep address:=auto     # the same sweep on the cluster this machine has joined
 
 The sweep is the report's kind of work: the bundled DAgger learner evaluated clean and under random, FGSM and
 its bundled ARIL-A in both attacked modes, ``repeats`` times over different episodes (``jobs`` evaluations of
@@ -31,7 +31,7 @@ class SweepBenchConfig:
     episodes: int = arg(4, "episodes per evaluation")
     horizon: int = arg(1000, "steps per episode")
     workers: int = arg(2, "CPUs of the embedded local Ray")
-    address: str = arg("", "a Ray cluster to run the sweep on instead (ray://<head>:10001, or auto)")
+    address: str = arg("", "a Ray cluster to run the sweep on instead (<head ip>:6379, or auto: the one this machine has joined)")
 
 
 def sweep_jobs(cfg: SweepBenchConfig) -> list[dict]:

@@ -85,7 +85,7 @@ class ReportConfig:
     horizon: int = arg(HORIZON, f"steps per episode (the paper's {HORIZON}; fewer only for a smoke test)")
     workers: int = arg(2, "CPUs of the local Ray the trainings and evaluations run on as tasks, one CPU each (1: one "
                           "after the other in this process, without Ray)")
-    address: str = arg("", "run the tasks on this Ray cluster instead (ray://<head>:10001, or auto for the one "
+    address: str = arg("", "run the tasks on this Ray cluster instead (<head ip>:6379, or auto for the one "
                            "this machine has joined; workers:= is then ignored)")
     perf: bool = arg(True, "run the benchmarks (the performance section)")
     bench_steps: int = arg(0, "steps per engine and adversary benchmark")
