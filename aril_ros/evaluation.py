@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -14,6 +15,7 @@ from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
+from .sweep import Shipped, run_tasks
 
 
 @dataclass
@@ -70,3 +72,31 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
             "eps": engine.attack.eps, "seed": cfg.seed, **summary,
             **({"queries_per_step": round(attack.queries_per_step, 2)} if isinstance(attack, QueryAttack) else {}),
             "steps_per_s": round(summary["steps"] / (time.time() - started), 1)}
+
+
+def evaluation_task(job: dict) -> dict:
+    """:func:`evaluate` of ``EvalConfig(**job)``: one task of a sweep (:mod:`aril_ros.sweep`)."""
+    return evaluate(EvalConfig(**job))
+
+
+FILE_FIELDS = ("policy", "expert", "attack_file")
+"""The EvalConfig fields that may name a file."""
+
+
+def shipped_job(job: dict) -> dict:
+    """``job`` (EvalConfig's fields) with the files it names marked to travel with its task: a cluster's nodes
+    share no filesystem (bundled names resolve in each node's own installation)."""
+    def is_file(value) -> bool:
+        return isinstance(value, str) and bool(Path(value).suffix) and Path(value).is_file()
+
+    return {**job, **{k: Shipped(Path(v)) for k, v in job.items() if k in FILE_FIELDS and is_file(v)}}
+
+
+def evaluate_all(jobs: list[dict], workers: int, address: str, log, label: str = "evaluations") -> list[dict]:
+    """Each job's :func:`evaluate` result, in order, run as sweep tasks (``workers`` CPUs of a local Ray, or the
+    cluster at ``address``; one worker: in this process)."""
+    results: list[dict] = [{}] * len(jobs)
+    for index, result in run_tasks(evaluation_task, [(shipped_job(job),) for job in jobs], workers, address,
+                                   label=label, log=log):
+        results[index] = result
+    return results

@@ -19,14 +19,14 @@ these print mean ± std). Every JSON names the command and settings that produce
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from . import seeds
 from .adversary import load_adversary, ready_adversary
 from .envs import HORIZON
 from .args import arg, comma_list
-from .evaluation import EvalConfig, evaluate
+from .evaluation import EvalConfig, evaluate_all
 from .provenance import stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
                        bundled_file, calibrated_eps, user_calibration)
@@ -84,6 +84,8 @@ class CalibrationConfig:
     episodes: int = arg(10, "deterministic episodes per cell")
     seed: int = arg(seeds.CALIBRATION, "env seed of the first episode")
     horizon: int = arg(HORIZON, "steps per episode")
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (.json and .md are written); unset: the user's calibration, "
                        "eps_calibration.{json,md} in the user data folder ($ARIL_DATA), which eps:=0 reads where "
                        "the bundled one has no row")
@@ -96,14 +98,20 @@ def calibrate_eps(cfg: CalibrationConfig, log=print) -> dict:
     json_path, md_path = _outputs(cfg.out, str(user_calibration().with_suffix("")))
     fresh = []
     grid = sorted(float(e) for e in comma_list(cfg.grid))
-    for env in comma_list(cfg.envs):
-        common = dict(env=env, policy=cfg.policy, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed,
-                      horizon=cfg.horizon)
-        clean = _cell(evaluate(EvalConfig(mode="clean", **common)))["mean"]
-        for mode in comma_list(cfg.modes):
+    envs, modes = comma_list(cfg.envs), comma_list(cfg.modes)
+
+    def job(env: str, mode: str, eps: float) -> dict:
+        return asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed,
+                                 horizon=cfg.horizon, mode=mode, attack="fgsm" if mode != "clean" else "none", eps=eps))
+
+    plan = [(env, "clean", 0.0) for env in envs] + [(env, mode, eps) for env in envs for mode in modes for eps in grid]
+    cells = dict(zip(plan, map(_cell, evaluate_all([job(*p) for p in plan], cfg.workers, cfg.address, log))))
+    for env in envs:
+        clean = cells[env, "clean", 0.0]["mean"]
+        for mode in modes:
             sweep = []
             for eps in grid:
-                cell = _cell(evaluate(EvalConfig(mode=mode, attack="fgsm", eps=eps, **common)))
+                cell = cells[env, mode, eps]
                 drop = 1.0 - cell["mean"] / clean if clean else 0.0
                 sweep.append({"eps": eps, **cell, "drop": round(drop, 4)})
                 log(f"[calibrate-eps] {env} {mode} eps={eps}: FGSM return {cell['mean']:.1f} "
@@ -165,6 +173,8 @@ class AttackTableConfig:
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")
     horizon: int = arg(HORIZON, "steps per episode")
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (default: results/attacks_<mode>)")
 
 
@@ -173,22 +183,30 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     victim) are kept, every cell with the command that made it."""
     made = stamp("aril attack-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
-    fresh = []
+    rows_of = ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]
+    adversaries, jobs = {}, []
     for env in comma_list(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (adversary_path(env, cfg.mode) if cfg.policy == DEFAULT_POLICY
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        ready_adversary(adversary, cfg.policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain, log)
-        cells = {}
-        for row in ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]:
+        adversaries[env] = ready_adversary(adversary, cfg.policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps,
+                                           cfg.retrain, log)
+        for row in rows_of:
             attack = "aril_a" if row == SEARCH_ROW else row
-            result = evaluate(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
-                                         mode="clean" if attack == "none" else cfg.mode, attack=attack,
-                                         eps=0.0 if attack == "none" else eps, k=cfg.k,
-                                         attack_file=str(adversary) if attack == "aril_a" else "",
-                                         search=cfg.search if row == SEARCH_ROW else 0,
-                                         episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon))
+            jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
+                                          mode="clean" if attack == "none" else cfg.mode, attack=attack,
+                                          eps=0.0 if attack == "none" else eps, k=cfg.k,
+                                          attack_file=str(adversary) if attack == "aril_a" else "",
+                                          search=cfg.search if row == SEARCH_ROW else 0,
+                                          episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
+    results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
+    fresh = []
+    for env, adversary in adversaries.items():
+        cells = {}
+        for row in rows_of:
+            attack = "aril_a" if row == SEARCH_ROW else row
+            result = next(results)
             cell = _cell(result)
             clean = cells["none"]["mean"] if attack != "none" else cell["mean"]
             cells[row] = {**cell, "episodes": cfg.episodes, "eps": result["eps"],
@@ -254,6 +272,8 @@ class DefenseTableConfig:
                                  "aril_ros/data/defense-adversary/); reused when they exist with the same eps")
     retrain: bool = arg(False, "train the adversaries even if they exist")
     horizon: int = arg(HORIZON, "steps per episode")
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (default: results/defenses_<mode>)")
 
 
@@ -266,32 +286,39 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
     unknown = [d for d in defenses if d not in DEFENSES]
     if unknown:
         raise ValueError(f"unknown defenses {unknown}; choose from {', '.join(DEFENSES)}")
-    fresh = []
+    # first the adversaries (each trained against its defense if missing), then every evaluation at once
+    settings, jobs = {}, {}
     for env in comma_list(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         common = dict(env=env, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, k=cfg.k)
-        clean_cells = {}
-
-        def clean(policy: str) -> dict:  # the DAgger learner's is the reference and maybe a row too: run it once
-            if policy not in clean_cells:
-                clean_cells[policy] = _cell(evaluate(EvalConfig(policy=policy, mode="clean", **common)))
-            return clean_cells[policy]
-
-        reference = clean(str(bundled_file(DEFAULT_POLICY, env)))["mean"]
-        cells = {}
+        reference = str(bundled_file(DEFAULT_POLICY, env))
+        # the DAgger learner's clean return is the reference and maybe a row too: one job per policy
+        jobs[env, reference, "none"] = EvalConfig(policy=reference, mode="clean", **common)
         for defense in defenses:
             policy = str(bundled_file(defense, env, cfg.mode))
             adversary = (Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt" if cfg.adversary_dir
                          else adversary_path(env, cfg.mode, defense))
             ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain,
                             log)
-            attacked = {threat: _cell(evaluate(EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
-                                                          attack_file=str(adversary) if threat == "aril_a" else "",
-                                                          **common)))
-                        for threat in THREATS}
+            settings[env, defense] = (eps, policy, adversary)
+            jobs[env, policy, "none"] = EvalConfig(policy=policy, mode="clean", **common)
+            for threat in THREATS:
+                jobs[env, policy, threat] = EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
+                                                       attack_file=str(adversary) if threat == "aril_a" else "",
+                                                       **common)
+    cell = dict(zip(jobs, map(_cell, evaluate_all([asdict(j) for j in jobs.values()], cfg.workers, cfg.address,
+                                                  log))))
+    fresh = []
+    for env in comma_list(cfg.envs):
+        reference = cell[env, str(bundled_file(DEFAULT_POLICY, env)), "none"]["mean"]
+        cells = {}
+        for defense in defenses:
+            eps, policy, adversary = settings[env, defense]
+            attacked = {threat: cell[env, policy, threat] for threat in THREATS}
             worst = worst_attack(attacked)
+            clean = cell[env, policy, "none"]
             cells[defense] = {
-                "clean": clean(policy)["mean"], "clean_std": clean(policy)["std"], "attacks": attacked,
+                "clean": clean["mean"], "clean_std": clean["std"], "attacks": attacked,
                 "worst": worst, **attacked[worst],
                 "drop": round(1.0 - attacked[worst]["mean"] / reference, 4) if reference else 0.0,
                 "episodes": cfg.episodes, "eps": eps, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",

@@ -4,6 +4,7 @@ from aril_ros.experiments import AttackTableConfig, CalibrationConfig, attack_ta
 from aril_ros.policy import save_policy
 
 QUIET = dict(log=lambda *a, **k: None)
+ONE = dict(workers=1)  # in this process: the patched registry and the fixtures' files are this process's
 
 
 def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
@@ -11,14 +12,14 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     expert = save_policy(make_policy("Swimmer-v5", seed=2), tmp_path / "expert.pt")
     calibration = calibrate_eps(CalibrationConfig(envs="Swimmer-v5", modes="sensory", policy=str(victim),
                                                   expert=str(expert), grid="0.01,0.5", episodes=2, horizon=60,
-                                                  max_drop=10.0, out=str(tmp_path / "cal")), **QUIET)
+                                                  max_drop=10.0, out=str(tmp_path / "cal"), **ONE), **QUIET)
     row = calibration["rows"][0]
     assert row["chosen_eps"] == 0.5 and len(row["sweep"]) == 2  # the loose rule keeps the largest eps
     assert "| Swimmer-v5 | sensory |" in (tmp_path / "cal.md").read_text()
     table = attack_table(AttackTableConfig(envs="Swimmer-v5", mode="sensory", policy=str(victim),
                                            expert=str(expert), calibration=str(tmp_path / "cal.json"),
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
-                                           adversary_dir=str(tmp_path), out=str(tmp_path / "attacks")), **QUIET)
+                                           adversary_dir=str(tmp_path), out=str(tmp_path / "attacks"), **ONE), **QUIET)
     cells = table["rows"][0]["cells"]
     assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "aril_a_search"}
     assert cells["spsa"]["queries_per_step"] == 1 + 3 * (2 * 8 + 1)  # k:=3 iterations of 8 directions
@@ -37,7 +38,7 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
 def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
     victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
     common = dict(envs="Swimmer-v5", policy=str(victim), expert=str(victim), grid="0.01", episodes=1, horizon=20,
-                  out=str(tmp_path / "cal"))
+                  out=str(tmp_path / "cal"), **ONE)
     calibrate_eps(CalibrationConfig(modes="sensory", **common), **QUIET)
     payload = calibrate_eps(CalibrationConfig(modes="physical", **common), **QUIET)
     assert [(r["env"], r["mode"]) for r in payload["rows"]] == [("Swimmer-v5", "physical"), ("Swimmer-v5", "sensory")]
@@ -66,7 +67,7 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
                                                              "chosen_eps": 0.3}]}))
     payload = defense_table(DefenseTableConfig(envs="Swimmer-v5", defenses="dagger,aril", calibration=str(tmp_path / "cal.json"),
                                                episodes=2, horizon=60, adversary_steps=2000, k=3,
-                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def")), **QUIET)
+                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def"), **ONE), **QUIET)
     row = payload["rows"][0]
     for defense in ("dagger", "aril"):
         cell = row["cells"][defense]
@@ -82,6 +83,6 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
     # a later run of one defense keeps the others' cells
     payload = defense_table(DefenseTableConfig(envs="Swimmer-v5", defenses="aril", calibration=str(tmp_path / "cal.json"),
                                                episodes=2, horizon=60, adversary_steps=2000, k=3,
-                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def")), **QUIET)
+                                               adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def"), **ONE), **QUIET)
     assert set(payload["rows"][0]["cells"]) == {"dagger", "aril"}
     assert payload["rows"][0]["cells"]["dagger"] == row["cells"]["dagger"]

@@ -45,8 +45,8 @@ def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, 
 
     returns = {"none": [100.0, 104.0], "random": [90.0, 80.0], "fgsm": [50.0, 70.0], "fgsm_k": [61.0, 57.0],
                "spsa": [66.0, 62.0], "aril_a": [75.0, 65.0]}
-    monkeypatch.setattr(experiments, "evaluate", lambda cfg: {"returns": returns[cfg.attack or "none"],
-                                                              "eps": cfg.eps, "mean_expert_loss": 0.0})
+    monkeypatch.setattr(experiments, "evaluate_all", lambda jobs, *a, **k: [
+        {"returns": returns[job["attack"] or "none"], "eps": job["eps"], "mean_expert_loss": 0.0} for job in jobs])
     monkeypatch.setattr(experiments, "ready_adversary", lambda *a, **k: None)
     monkeypatch.setattr(experiments, "load_adversary", lambda path: type("A", (), {"meta": {"provenance": {}}}))
     payload = experiments.defense_table(experiments.DefenseTableConfig(envs="Swimmer-v5", defenses="aril",

@@ -98,3 +98,16 @@ def test_a_task_runs_as_many_physics_threads_as_it_has_cpus(monkeypatch):
     assert physics_threads() == len(os.sched_getaffinity(0))
     monkeypatch.setenv("OMP_NUM_THREADS", "1")  # what Ray sets in a task of one CPU
     assert physics_threads() == 1
+
+
+def test_a_table_on_two_nodes_is_the_table_of_one_process(two_nodes, tmp_path, make_policy):
+    """The tables' evaluations are sweep tasks too (calibrate-eps here): a policy file of the caller's travels."""
+    from aril_ros.experiments import CalibrationConfig, calibrate_eps
+    from aril_ros.policy import save_policy
+
+    victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
+    common = dict(envs="Swimmer-v5", modes="sensory,physical", policy=str(victim), grid="0.01,0.3", episodes=2,
+                  horizon=30)
+    rows = [calibrate_eps(CalibrationConfig(**common, out=str(tmp_path / name), **how), log=quiet)["rows"]
+            for name, how in (("one", {"workers": 1}), ("two", {"address": two_nodes.address}))]
+    assert [r["sweep"] for r in rows[1]] == [r["sweep"] for r in rows[0]]

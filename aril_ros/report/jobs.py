@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import seeds
+from ..evaluation import evaluation_task, shipped_job
 from ..policy import PolicyFileError
 from ..registry import THREATS
-from ..sweep import Shipped, run_tasks
+from ..sweep import run_tasks
 
 FAILURES = (PolicyFileError, ValueError, RuntimeError, OSError)
 """Recorded as a missing file or a failed benchmark, not raised."""
@@ -61,20 +62,13 @@ def evaluation_plan(policies: dict, adversaries: dict, eps: dict, episodes: int,
 
 
 def _evaluate_job(job: dict) -> list[float]:
-    from ..evaluation import EvalConfig, evaluate
-
-    return evaluate(EvalConfig(**job))["returns"]
+    return evaluation_task(job)["returns"]
 
 
 def job_key(job: dict) -> str:
     """The cache key: the evaluation's arguments and the digests of the policy and adversary files."""
     files = {k: digest(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}
     return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
-
-
-def shipped_job(job: dict) -> dict:
-    """``job`` with the files it reads marked to travel with its task (a cluster's nodes share no filesystem)."""
-    return {**job, **{k: Shipped(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}}
 
 
 def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
