@@ -1,6 +1,11 @@
 import json
 
-from aril_ros.experiments import AttackTableConfig, CalibrationConfig, attack_table, calibrate_eps
+from aril_ros.experiments import (
+    AttackTableConfig,
+    CalibrationConfig,
+    attack_table,
+    calibrate_eps,
+)
 from aril_ros.policy import save_policy
 
 QUIET = dict(log=lambda *a, **k: None)
