@@ -29,6 +29,7 @@ from .onboard import OnboardConfig, onboard
 from .policy import PolicyFileError
 from .render import RenderConfig, RenderError, render
 from .report import ReportConfig, build_report
+from .scan import ScanConfig, scan_adversary
 from .scorecard import ScorecardConfig, scorecard
 
 
@@ -76,6 +77,8 @@ COMMANDS = {
                           "GAIL: a discriminator's reward for stable-baselines3 PPO (no expert labels)."),
     "train-adversary": Command(AdversaryConfig, train_adversary,
                                "Train the learned ARIL-A adversary against a policy (PPO on the in-process engine)."),
+    "scan-adversary": Command(ScanConfig, scan_adversary, "A hyperparameter scan of ARIL-A against a policy: every "
+                              "point trained and evaluated as a Ray task (local or a cluster), ranked."),
     "calibrate-eps": Command(CalibrationConfig, calibrate_eps,
                              "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%)."),
     "attack-table": Command(AttackTableConfig, attack_table,

@@ -22,6 +22,8 @@ DEFENSE_TABLE = 3_000
 """``aril defense-table`` and ``aril report`` (every table cell and sweep point): 3000..3999."""
 SCORECARD = 4_000
 """``aril scorecard``: 4000..4999 (every cell the same episodes)."""
+SCAN = 5_000
+"""``aril scan-adversary``: 5000..5999 (every point and the clean run the same episodes)."""
 SELECTION = 10_000
 """Keeping the best during training (experts, GAIL, BC's check): 10000..10999."""
 GAIL_DEMOS = 20_000

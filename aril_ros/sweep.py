@@ -17,11 +17,13 @@ from __future__ import annotations
 import hashlib
 import importlib
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,8 +47,8 @@ class Produced:
 
 @dataclass(frozen=True)
 class _Content:
+    path: Path  # as the call gave it
     digest: str
-    suffix: str
     ref: object  # the bytes, as an ObjectRef in Ray's store
 
 
@@ -83,22 +85,38 @@ def _in_place(call):
 
 
 def _task(fn, call):
-    """What runs on a worker: materialise the shipped files, run, return the result and the produced files' bytes."""
+    """What runs on a worker: the call in a scratch folder of its own, where each shipped file and each file to
+    make given by a relative path sits at that same relative path, so that what the task records (a trained file's
+    provenance names its inputs and itself) reads as it would on the driver; the result and the produced files'
+    bytes go back."""
     import ray
 
-    made = Path(tempfile.mkdtemp(prefix="aril_ros-task-"))
-    local = {}
+    scratch = Path(tempfile.mkdtemp(prefix="aril_ros-task-"))
+    made = {}
 
     def leaf(marked):
+        path = Path(marked.path)
         if isinstance(marked, _Content):
-            return node_copy(marked.digest, marked.suffix, lambda: ray.get(marked.ref))
-        local[str(marked.path)] = made / Path(marked.path).name  # a Produced file, made here
-        return local[str(marked.path)]
+            stored = node_copy(marked.digest, path.suffix, lambda: ray.get(marked.ref))
+            if path.is_absolute():
+                return stored
+            (scratch / path).parent.mkdir(parents=True, exist_ok=True)
+            (scratch / path).symlink_to(stored)
+            return path
+        made[str(path)] = scratch / (path if not path.is_absolute() else path.name)
+        made[str(path)].parent.mkdir(parents=True, exist_ok=True)
+        return path if not path.is_absolute() else made[str(path)]
 
-    result = fn(*_map(call, leaf))
-    produced = {original: Path(path).read_bytes() for original, path in local.items()}
-    # a result naming a produced file names the driver's copy of it
-    return _map_paths(result, {str(v): Path(k) for k, v in local.items()}), produced
+    where = os.getcwd()
+    try:
+        os.chdir(scratch)
+        result = fn(*_map(call, leaf))
+        produced = {original: local.read_bytes() for original, local in made.items()}
+    finally:
+        os.chdir(where)
+        shutil.rmtree(scratch, ignore_errors=True)
+    # a result naming a file made at an absolute path names the driver's copy of it
+    return _map_paths(result, {str(local): Path(original) for original, local in made.items()}), produced
 
 
 def _map_paths(value, renamed: dict[str, Path]):
@@ -134,6 +152,21 @@ def connect(address: str, workers: int):
     else:
         ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     return ray, True
+
+
+@contextmanager
+def session(workers: int, address: str):
+    """One Ray for every sweep of a command (each would otherwise start and stop its own): connected on entry
+    when tasks will leave this process (``workers`` above 1, or an ``address``), shut down on exit if started here."""
+    if workers == 1 and not address:
+        yield
+        return
+    ray, started = connect(address, workers)
+    try:
+        yield
+    finally:
+        if started:
+            ray.shutdown()
 
 
 class Progress:
@@ -188,7 +221,7 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
                 return marked
             if marked.path not in contents:
                 data = Path(marked.path).read_bytes()
-                contents[marked.path] = _Content(digest_of(data), Path(marked.path).suffix, ray.put(data))
+                contents[marked.path] = _Content(Path(marked.path), digest_of(data), ray.put(data))
             return contents[marked.path]
 
         remote = ray.remote(num_cpus=cpus, max_retries=0)(_task)

@@ -66,6 +66,17 @@ def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path
     assert lines[-1].startswith("[sweep] files: 6/6 done, 0 running, 0 failed")
 
 
+def test_a_task_sees_relative_paths_as_the_driver_gave_them(two_nodes, tmp_path, monkeypatch):
+    """What a task records of its files (a trained file's provenance) must not be a worker's scratch path."""
+    monkeypatch.chdir(tmp_path)
+    Path("in.txt").write_text("policy bytes")
+    results = dict(run_tasks(where_and_what, [(Shipped(Path("in.txt")), Produced(Path("made/out.txt")))],
+                             address=two_nodes.address, log=quiet))
+    _, seen_source, seen_out = results[0]
+    assert (seen_source, seen_out) == ("in.txt", "made/out.txt")
+    assert Path("made/out.txt").read_text() == "POLICY BYTES"
+
+
 def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_nodes, tmp_path):
     env, mode = "Swimmer-v5", "sensory"
     policy, adversary = bundled_file("dagger", env), adversary_path(env, mode, "dagger")
@@ -111,3 +122,15 @@ def test_a_table_on_two_nodes_is_the_table_of_one_process(two_nodes, tmp_path, m
     rows = [calibrate_eps(CalibrationConfig(**common, out=str(tmp_path / name), **how), log=quiet)["rows"]
             for name, how in (("one", {"workers": 1}), ("two", {"address": two_nodes.address}))]
     assert [r["sweep"] for r in rows[1]] == [r["sweep"] for r in rows[0]]
+
+
+def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path):
+    """Trainings are tasks too: an adversary trained on a worker is the one trained here, bit for bit in effect."""
+    from aril_ros.scan import ScanConfig, scan_adversary
+
+    common = dict(env="Swimmer-v5", mode="sensory", grid="lr=0.001,0.0003 n_envs=4 rollout=64", steps=256,
+                  episodes=2, horizon=30)
+    ranked = [[(p["grid"], p["returns"]) for p in scan_adversary(ScanConfig(**common, out=str(tmp_path / name), **how),
+                                                                 log=quiet)["points"]]
+              for name, how in (("one", {"workers": 1}), ("two", {"address": two_nodes.address}))]
+    assert ranked[1] == ranked[0]

@@ -45,8 +45,16 @@ from pathlib import Path
 from ..args import arg, comma_list
 from ..envs import HORIZON
 from ..provenance import git_revision, stamp
-from ..registry import ATTACKED_MODES, DEFAULT_ENV, PAPER_DEFENSES, PAPER_ENVS, THREATS, calibrated_eps
+from ..registry import (
+    ATTACKED_MODES,
+    DEFAULT_ENV,
+    PAPER_DEFENSES,
+    PAPER_ENVS,
+    THREATS,
+    calibrated_eps,
+)
 from ..seeds import DEFENSE_TABLE
+from ..sweep import session
 from .artifacts import Artifacts, aril_rounds
 from .jobs import by_cell, digest, evaluation_plan, evaluations_json, run_jobs
 from .perf import run_benchmarks
@@ -150,18 +158,18 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     # 1. performance, first, on an idle machine
     benchmarks = run_benchmarks(cfg.bench_steps, log) if cfg.perf else {}
 
-    # 2. each defense's policy and the ARIL-A against it, per env, mode and training seed
+    # 2. each defense's policy and the ARIL-A against it, per env, mode and training seed; 3. the evaluations, from
+    # the cache or run; all as tasks of one Ray
     eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
-    store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
-    policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
-                               for defense in PAPER_DEFENSES for seed in training_seeds])
-    adversaries = store.adversaries(policies, eps)
-
-    # 3. the evaluations, from the cache or run
-    plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
-                           scales_of(cfg), cfg.horizon)
-    returns, counts = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers, cfg.address,
-                               cfg.fresh, log)
+    with session(cfg.workers, cfg.address):
+        store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
+        policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
+                                   for defense in PAPER_DEFENSES for seed in training_seeds])
+        adversaries = store.adversaries(policies, eps)
+        plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
+                               scales_of(cfg), cfg.horizon)
+        returns, counts = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers, cfg.address,
+                                   cfg.fresh, log)
     evals = by_cell(plan, returns)
 
     # 4. tables, figures, the JSON and the text
