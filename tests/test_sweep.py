@@ -1,4 +1,5 @@
 """Sweeps as Ray tasks (aril_ros.sweep): in this process, on a local Ray, and on a two-node cluster on this machine."""
+import json
 import math
 import operator
 from pathlib import Path
@@ -134,3 +135,35 @@ def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path
                                                                  log=quiet)["points"]]
               for name, how in (("one", {"workers": 1}), ("two", {"address": two_nodes.address}))]
     assert ranked[1] == ranked[0]
+
+
+def test_a_killed_sweep_resumes_with_what_had_finished(tmp_path):
+    """Ctrl-C on the driver of a sweep on a local Ray, then the same sweep again: the finished tasks are not rerun."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    jobs = [{"env": "Swimmer-v5", "policy": str(bundled_file("dagger", "Swimmer-v5")), "mode": "sensory",
+             "attack": "random", "eps": 0.3, "episodes": 2, "seed": 3000 + 2 * i, "horizon": 1000} for i in range(8)]
+    (tmp_path / "jobs.json").write_text(json.dumps(jobs))
+    script = ("import json, sys; from pathlib import Path; from aril_ros.report.jobs import run_jobs; "
+              "run_jobs(json.loads(Path(sys.argv[1]).read_text()), Path(sys.argv[2]), 2, '', False, print)")
+    cache = tmp_path / "cache"
+    driver = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "jobs.json"), str(cache)],
+                              start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while len(list(cache.glob("*.json"))) < 1 and driver.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        os.killpg(driver.pid, signal.SIGINT)  # the driver and the Ray it started: one session
+        driver.wait(timeout=60)
+        time.sleep(2)
+        subprocess.run(["pkill", "-KILL", "-s", str(driver.pid)], check=False)
+    finished = len(list(cache.glob("*.json")))
+    assert 1 <= finished < len(jobs), "the sweep was to be stopped part way"
+    returns, counts = run_jobs(jobs, cache, 1, "", False, quiet)
+    assert counts == {"run": len(jobs) - finished, "cached": finished}
+    assert all(len(r) == 2 for r in returns)
