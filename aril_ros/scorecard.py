@@ -10,7 +10,9 @@ expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; t
 and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
 calibrated one for the env and mode unless ``eps:=`` sets it.
 
-A policy file or a bundled name is scored on the in-process engine. ``policy:=external`` scores a ROS 2 policy
+A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
+``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings. ``policy:=external`` scores
+a ROS 2 policy
 node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
 your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
 Start the node in a domain of your choosing and name it::
@@ -48,18 +50,27 @@ import numpy as np
 
 from . import plugins, seeds
 from .adversary import load_adversary, ready_adversary
-from .dagger import RoundSpec
 from .args import arg, comma_list
+from .dagger import RoundSpec
 from .envs import HORIZON
-from .evaluation import EvalConfig, evaluate
+from .evaluation import EvalConfig, evaluate, shipped_job
 from .mcap_log import read_run
-from .protocol import checked_domain, ros_domain
 from .policy import resolve_policy
+from .protocol import checked_domain, ros_domain
 from .provenance import stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_ENV, PER_MODE_POLICIES, WHITE_BOX, bundled_file,
-                       calibrated_eps, check_name)
+from .registry import (
+    ATTACKED_MODES,
+    ATTACKS,
+    DEFAULT_ENV,
+    PER_MODE_POLICIES,
+    WHITE_BOX,
+    bundled_file,
+    calibrated_eps,
+    check_name,
+)
 from .report.stats import t95, worst_attack
 from .step import EpisodeStats, episode_stats, summarise_episodes
+from .sweep import run_tasks, session
 
 
 @dataclass(frozen=True)
@@ -114,6 +125,10 @@ class ScorecardConfig:
     episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)")
     adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)")
     horizon: int = arg(HORIZON, "steps per episode")
+    workers: int = arg(2, "a policy file or bundled name: CPUs of the local Ray its cells run on as tasks (1: one "
+                          "after the other in this process); an external node's cells run one after the other")
+    address: str = arg("", "a policy file or bundled name: run its cells on this Ray cluster instead (<head ip>:6379, "
+                           "or auto)")
     out: str = arg("", "the folder to write (default runs/scorecard-<env>-<policy name>)")
 
 
@@ -123,16 +138,22 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
     out.mkdir(parents=True, exist_ok=True)
     clock = Progress(1 + len(modes) * len(attacks) * len(scales), len(modes) if "aril_a" in attacks else 0, log)
-    clean = run_cell(cfg, budget, "clean", "none", 0.0, None, clock, out)  # the same episodes as every other cell
+    eps = {mode: cfg.eps or calibrated_eps(cfg.env, mode) for mode in modes}
+    plan = [(mode, attack, scale * eps[mode]) for mode in modes for attack in attacks for scale in scales]
+    with nullcontext() if cfg.policy == "external" else session(cfg.workers, cfg.address):
+        # the clean cell first (the same episodes as every other cell): an external node that waits for the run's
+        # listeners before it subscribes (msgs_doc's) is then subscribed when ARIL-A's training asks it alone
+        [clean] = run_cells(cfg, budget, [("clean", "none", 0.0)], {}, clock, out)
+        adversaries = {mode: clock.training(lambda mode=mode: adversary_for(cfg, mode, eps[mode], budget,
+                                                                            out / f"adversary-{mode}.pt", log))
+                       for mode in modes} if "aril_a" in attacks else {}
+        cells = iter(run_cells(cfg, budget, plan, adversaries, clock, out))
     results = {}
     for mode in modes:
-        eps = cfg.eps or calibrated_eps(cfg.env, mode)
-        adversary = (clock.training(lambda: adversary_for(cfg, mode, eps, budget, out / f"adversary-{mode}.pt", log))
-                     if "aril_a" in attacks else None)
-        cells = {attack: {scale: run_cell(cfg, budget, mode, attack, scale * eps, adversary, clock, out)
-                          for scale in scales} for attack in attacks}
-        results[mode] = {"eps": eps, "eps_source": "eps:=" if cfg.eps else "calibrated", "adversary": str(adversary),
-                         "clean": clean, "attacks": cells, "worst": worst_case(clean, cells)}
+        mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in attacks}
+        results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
+                         "adversary": str(adversaries.get(mode)), "clean": clean, "attacks": mode_cells,
+                         "worst": worst_case(clean, mode_cells)}
         plot_sweep(results[mode], cfg, mode, scales, out / f"sweep-{mode}.png")
     payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
                "scales": scales, "modes": results}
@@ -200,31 +221,53 @@ def victim_of(policy: str, env_id: str, mode: str) -> str:
     return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
 
 
-def run_cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: Path | None,
-             clock: Progress, out: Path) -> dict:
-    """One evaluation, in-process or (an external node) through the graph: every episode's figures and their
-    summary. ARIL-A runs at its own eps when ``eps`` is, and scaled to ``eps`` otherwise (its perturbation times
+def run_cells(cfg: ScorecardConfig, budget: Budget, plan: list[tuple[str, str, float]], adversaries: dict,
+              clock: Progress, out: Path) -> list[dict]:
+    """Every cell of ``plan`` (mode, attack, eps), in its order: for an external node one graph run after the other,
+    else as sweep tasks on the engine (their time on the clock: since the cell before, so the ETA is the pace of all
+    the workers). ARIL-A runs at its own eps when ``eps`` is, and scaled to ``eps`` otherwise (its perturbation times
     eps / its eps)."""
-    started = time.monotonic()
-    run = graph_episodes if cfg.policy == "external" else engine_episodes
-    episodes = sorted(run(cfg, budget, mode, attack, eps, str(adversary) if attack == "aril_a" else "", out),
-                      key=lambda e: e.episode)
+    files = [str(adversaries[mode]) if attack == "aril_a" else "" for mode, attack, _ in plan]
+    cells: list[dict] = [{}] * len(plan)
+    if cfg.policy == "external":
+        for index, ((mode, attack, eps), file) in enumerate(zip(plan, files)):
+            started = time.monotonic()
+            cells[index] = cell_of(cfg, eps, graph_episodes(cfg, budget, mode, attack, eps, file, out))
+            clock.done(cell_text(plan[index], cells[index]), time.monotonic() - started)
+        return cells
+    jobs = [dataclasses.asdict(EvalConfig(
+        env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps, attack_file=file,
+        rescale=bool(file), episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon, **spsa_settings(attack, budget)))
+        for (mode, attack, eps), file in zip(plan, files)]
+    last = time.monotonic()
+    for index, episodes in run_tasks(engine_episodes, [(shipped_job(job),) for job in jobs], cfg.workers, cfg.address,
+                                     log=lambda *args, **kwargs: None):  # the clock says how far it is
+        cells[index] = cell_of(cfg, plan[index][2], episodes)
+        now = time.monotonic()
+        clock.done(cell_text(plan[index], cells[index]), now - last)
+        last = now
+    return cells
+
+
+def cell_text(spec: tuple[str, str, float], cell: dict) -> str:
+    mode, attack, eps = spec
+    return f"{mode} {ATTACKS[attack]} eps {eps:g}: return {cell['mean_return']:.1f}"
+
+
+def cell_of(cfg: ScorecardConfig, eps: float, episodes: list[EpisodeStats]) -> dict:
+    """A cell: every episode's figures (in episode order) and their summary."""
+    episodes = sorted(episodes, key=lambda e: e.episode)
     summary = summarise_episodes(episodes)
-    cell = {"eps": eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
+    return {"eps": eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
             "episodes": [{"episode": e.episode, "env_seed": cfg.seed + e.episode, "return": e.reward,
-                          "expert_loss": round(e.expert_loss, 6), "steps": e.steps, "max_abs_delta": round(e.max_delta, 6)}
-                         for e in episodes]}
-    clock.done(f"{mode} {ATTACKS[attack]} eps {eps:g}: return {summary['mean_return']:.1f}",
-               time.monotonic() - started)
-    return cell
+                          "expert_loss": round(e.expert_loss, 6), "steps": e.steps,
+                          "max_abs_delta": round(e.max_delta, 6)} for e in episodes]}
 
 
-def engine_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
-                    out: Path) -> list[EpisodeStats]:
+def engine_episodes(job: dict) -> list[EpisodeStats]:
+    """A cell on the engine (a sweep task): ``aril eval`` of ``job``, every episode's figures."""
     episodes = []
-    evaluate(EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
-                        attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
-                        horizon=cfg.horizon, **spsa_settings(attack, budget)), progress=episodes.append)
+    evaluate(EvalConfig(**job), progress=episodes.append)
     return episodes
 
 

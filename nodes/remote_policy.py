@@ -67,9 +67,17 @@ class RemotePolicy:
         deadline = time.monotonic() + timeout
         while not all(ok() for ok in self.checks().values()):
             if time.monotonic() > deadline:
+                # a node that publishes actions but has not subscribed yet is most likely msgs_doc's, which subscribes
+                # once `listeners` subscribers hear its actions (2 in a run): alone, this trainer is one
+                waiting = self.sub.get_publisher_count() and not self.pub.get_subscription_count()
                 self.close()
-                raise RemotePolicyError(f"no policy node subscribes to {P.OBSERVATION} and publishes {P.ACTION} "
-                                        f"within {timeout:.0f} s (ROS_DOMAIN_ID and the node running?)")
+                raise RemotePolicyError(
+                    f"a node publishes {P.ACTION} but none subscribes to {P.OBSERVATION} within {timeout:.0f} s: a "
+                    "node written from msgs_doc subscribes once its 'listeners' parameter's count of subscribers hear "
+                    "its actions, and an adversary's training alone is one; start it with --ros-args -p listeners:=1"
+                    if waiting else
+                    f"no policy node subscribes to {P.OBSERVATION} and publishes {P.ACTION} within {timeout:.0f} s "
+                    "(ROS_DOMAIN_ID and the node running?)")
             self.executor.spin_once(timeout_sec=0.05)
 
     def begin_step(self, step: StepTag, stamp_ns: int) -> None:

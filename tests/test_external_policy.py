@@ -111,6 +111,32 @@ def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_p
     assert "## physical" in page.read_text()
 
 
+def test_training_against_the_documented_node_alone_names_its_listeners(tmp_path):
+    """aril train-adversary victim:=ros asks the node with one listener on action: the doc's node, waiting for 2
+    before it subscribes, never would; the error says so and how to start it, and with listeners:=1 it answers."""
+    from aril_ros.protocol import ros_domain
+    from aril_ros_nodes.remote_policy import RemotePolicy, RemotePolicyError
+
+    domain = free_domain()
+    for listeners, answers in ((2, False), (1, True)):
+        node = start_node(documented_node(), domain, tmp_path, "-p", "act_dim:=6", "-p", f"listeners:={listeners}")
+        try:
+            with ros_domain(domain):
+                if not answers:
+                    with pytest.raises(RemotePolicyError, match="start it with --ros-args -p listeners:=1"):
+                        RemotePolicy("HalfCheetah-v5", connect_timeout=15)
+                    continue
+                policy = RemotePolicy("HalfCheetah-v5", connect_timeout=30)
+                try:
+                    obs = np.random.default_rng(0).normal(size=(3, 17))
+                    np.testing.assert_array_equal(policy.act(obs), np.tanh(obs[:, :6]))
+                finally:
+                    policy.close()
+        finally:
+            stop(node)
+    assert processes_in_domain(domain) == []
+
+
 def test_the_env_table_in_the_doc_is_the_generated_one():
     spec = importlib.util.spec_from_file_location("env_table", ROOT / "msgs_doc" / "env_table.py")
     env_table = importlib.util.module_from_spec(spec)
