@@ -350,20 +350,22 @@ def ppo_update(net: AdversaryNet, optimizer, batch: Rollout, advantages: torch.T
     flat = lambda x: x.reshape(size, *x.shape[2:])  # noqa: E731
     b_obs, b_sample, b_logp = flat(batch.obs), flat(batch.sample), flat(batch.logp)
     b_adv, b_ret = flat(advantages), flat(remainder_target)
+    # clipped apart: the value loss (in units of summed disagreement) would otherwise dominate the joint norm and
+    # shrink every policy step along with it
+    policy_params = [p for name, p in net.named_parameters() if not name.startswith("value_net")]
+    value_params = list(net.value_net.parameters())
     for _ in range(cfg.epochs):
         for idx in torch.randperm(size, generator=gen).split(cfg.minibatch):
             log_prob, entropy = net.log_prob_and_entropy(b_obs[idx], b_sample[idx])
             ratio = (log_prob - b_logp[idx]).exp()
-            adv = (b_adv[idx] - b_adv[idx].mean()) / (b_adv[idx].std() + 1e-8)
+            mb_adv = b_adv[idx]
+            adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
             policy_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
             value_loss = ((net.value(b_obs[idx]) - b_ret[idx]) ** 2).mean()
             entropy = entropy.mean()
             loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
             optimizer.zero_grad()
             loss.backward()
-            # clipped apart: the value loss (in units of summed disagreement) would otherwise
-            # dominate the joint norm and shrink every policy step along with it
-            nn.utils.clip_grad_norm_([p for name, p in net.named_parameters() if not name.startswith("value_net")],
-                                     cfg.max_grad_norm)
-            nn.utils.clip_grad_norm_(net.value_net.parameters(), cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_(policy_params, cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_(value_params, cfg.max_grad_norm)
             optimizer.step()
