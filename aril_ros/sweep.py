@@ -150,7 +150,9 @@ def connect(address: str, workers: int):
     if address:
         ray.init(address=address, logging_level="ERROR", log_to_driver=False)
     else:
-        ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+        # address "local": a new Ray of its own, even where this machine runs a cluster (which ray.init would join)
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR",
+                 log_to_driver=False)
     return ray, True
 
 

@@ -137,8 +137,9 @@ def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path
     assert ranked[1] == ranked[0]
 
 
-def test_a_killed_sweep_resumes_with_what_had_finished(tmp_path):
-    """Ctrl-C on the driver of a sweep on a local Ray, then the same sweep again: the finished tasks are not rerun."""
+def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
+    """Ctrl-C on the driver of a sweep on a local Ray, then the same sweep again: the finished tasks are not rerun.
+    A cluster runs on this machine meanwhile (``two_nodes``): the driver's embedded Ray must be its own, not join it."""
     import os
     import signal
     import subprocess
@@ -158,7 +159,8 @@ def test_a_killed_sweep_resumes_with_what_had_finished(tmp_path):
         while len(list(cache.glob("*.json"))) < 1 and driver.poll() is None and time.monotonic() < deadline:
             time.sleep(0.2)
     finally:
-        os.killpg(driver.pid, signal.SIGINT)  # the driver and the Ray it started: one session
+        if driver.poll() is None:
+            os.killpg(driver.pid, signal.SIGINT)  # the driver and the Ray it started: one session
         driver.wait(timeout=60)
         time.sleep(2)
         subprocess.run(["pkill", "-KILL", "-s", str(driver.pid)], check=False)
