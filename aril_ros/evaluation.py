@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
@@ -15,7 +14,7 @@ from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
-from .sweep import Shipped, run_tasks
+from .sweep import run_tasks, shipped
 
 
 @dataclass
@@ -85,11 +84,8 @@ FILE_FIELDS = ("policy", "expert", "attack_file")
 
 def shipped_job(job: dict) -> dict:
     """``job`` (EvalConfig's fields) with the files it names marked to travel with its task: a cluster's nodes
-    share no filesystem (bundled names resolve in each node's own installation)."""
-    def is_file(value) -> bool:
-        return isinstance(value, str) and bool(Path(value).suffix) and Path(value).is_file()
-
-    return {**job, **{k: Shipped(Path(v)) for k, v in job.items() if k in FILE_FIELDS and is_file(v)}}
+    share no filesystem."""
+    return {k: shipped(v) if k in FILE_FIELDS else v for k, v in job.items()}
 
 
 def evaluate_all(jobs: list[dict], workers: int, address: str, log, label: str = "evaluations") -> list[dict]:

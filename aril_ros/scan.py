@@ -40,7 +40,7 @@ from .registry import (
     check_name,
 )
 from .report.stats import summarise
-from .sweep import Produced, Shipped, run_tasks, session
+from .sweep import Produced, run_tasks, session, shipped
 
 FIXED = ("env", "mode", "eps", "victim", "expert", "steps", "out", "threads", "init")
 """The fields of train-adversary the scan sets itself: the grid scans any other."""
@@ -104,7 +104,7 @@ def scan_adversary(cfg: ScanConfig, log=print) -> dict:
     for argv in argvs:
         parse_args(AdversaryConfig, argv)  # every point's values checked before anything trains
     files = [out / f"adversary-{k}.pt" for k in range(len(points))]
-    victim = Shipped(Path(cfg.victim)) if Path(cfg.victim).is_file() else cfg.victim
+    victim = shipped(cfg.victim)
 
     with session(cfg.workers, cfg.address):
         # 1. the adversaries not trained yet, one task each

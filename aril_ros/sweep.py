@@ -56,27 +56,39 @@ def digest_of(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def node_copy(digest: str, suffix: str, data) -> Path:
-    """The file with these bytes on this node: under its digest in a node-local store, written once, atomically."""
+def node_copy(digest: str, suffix: str, fetch) -> Path:
+    """The file of these bytes (``fetch()`` gives them) on this node: under its digest in a node-local store,
+    fetched and written once, atomically."""
     store = Path(tempfile.gettempdir()) / "aril_ros-files"
     path = store / f"{digest}{suffix}"
     if not path.exists():
         store.mkdir(parents=True, exist_ok=True)
         partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
-        partial.write_bytes(data() if callable(data) else data)
+        partial.write_bytes(fetch())
         os.replace(partial, path)
     return path
 
 
-def _map(value, leaf):
-    """``value`` with every Shipped / Produced / _Content in it (tuples, lists, dicts) replaced by ``leaf(it)``."""
-    if isinstance(value, (Shipped, Produced, _Content)):
+MARKED = (Shipped, Produced, _Content)
+
+
+def _map(value, leaf, is_leaf=lambda value: isinstance(value, MARKED)):
+    """``value`` with every part ``is_leaf`` accepts (by default the marked files) inside tuples, lists and dicts
+    replaced by ``leaf(it)``."""
+    if is_leaf(value):
         return leaf(value)
     if isinstance(value, (tuple, list)):
-        return type(value)(_map(v, leaf) for v in value)
+        return type(value)(_map(v, leaf, is_leaf) for v in value)
     if isinstance(value, dict):
-        return {k: _map(v, leaf) for k, v in value.items()}
+        return {k: _map(v, leaf, is_leaf) for k, v in value.items()}
     return value
+
+
+def shipped(value):
+    """``value`` marked to travel with its task when it names a file (a path with a suffix); else as it is (a
+    bundled name resolves in each node's own installation)."""
+    is_file = isinstance(value, (str, Path)) and bool(Path(value).suffix) and Path(value).is_file()
+    return Shipped(Path(value)) if is_file else value
 
 
 def _in_place(call):
@@ -116,17 +128,9 @@ def _task(fn, call):
         os.chdir(where)
         shutil.rmtree(scratch, ignore_errors=True)
     # a result naming a file made at an absolute path names the driver's copy of it
-    return _map_paths(result, {str(local): Path(original) for original, local in made.items()}), produced
-
-
-def _map_paths(value, renamed: dict[str, Path]):
-    if isinstance(value, (str, Path)) and str(value) in renamed:
-        return renamed[str(value)] if isinstance(value, Path) else str(renamed[str(value)])
-    if isinstance(value, (tuple, list)):
-        return type(value)(_map_paths(v, renamed) for v in value)
-    if isinstance(value, dict):
-        return {k: _map_paths(v, renamed) for k, v in value.items()}
-    return value
+    renamed = {str(local): Path(original) for original, local in made.items()}
+    return _map(result, lambda v: renamed[str(v)] if isinstance(v, Path) else str(renamed[str(v)]),
+                lambda v: isinstance(v, (str, Path)) and str(v) in renamed), produced
 
 
 def ensure_ray():
