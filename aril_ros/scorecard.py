@@ -11,9 +11,11 @@ and, when the policy is a file whose gradients can be taken, the white-box FGSM 
 calibrated one for the env and mode unless ``eps:=`` sets it.
 
 A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
-``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings. ``policy:=external`` scores
-a ROS 2 policy
-node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
+``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings; with ``via:=graph`` each
+cell is instead a run of the ROS 2 graph with a policy node serving the file (the verdict through the nodes a robot
+runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`GRAPH_RUN_CPUS` CPUs
+on its node, in a ROS domain of its own there, its log coming back with ``keep_logs:=true``. ``policy:=external``
+scores a ROS 2 policy node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
 your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
 Start the node in a domain of your choosing and name it::
 
@@ -29,7 +31,8 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps;
                              for an external node: another node needs another out:= folder)
-    logs/<mode>-<attack>-<eps>.mcap   policy:=external with keep_logs:=true: each graph run's log
+    logs/<mode>-<attack>-<eps>.mcap   through the graph (policy:=external, via:=graph) with keep_logs:=true: each
+                                      graph run's log
 
 A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
 evaluations at most.
@@ -70,7 +73,7 @@ from .registry import (
 )
 from .report.stats import t95, worst_attack
 from .step import EpisodeStats, episode_stats, summarise_episodes
-from .sweep import run_tasks, session
+from .sweep import Produced, run_tasks, session, shipped
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,10 @@ BUDGETS = {"quick": Budget(episodes=5, adversary_steps=120_000, spsa_iterations=
 SCALES = "0.25,0.5,1,2"
 """The eps sweep, as multiples of the mode's eps (the default of ``scales:=``)."""
 SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
+VIAS = ("engine", "graph")
+GRAPH_RUN_CPUS = 2
+"""What a graph run (a cell through the graph) declares as a sweep task: its five processes work in lockstep, about
+4.5 ms of CPU per step at 420 steps/s here, i.e. two cores busy (issue 16's profile)."""
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 
 
@@ -119,8 +126,12 @@ class ScorecardConfig:
                               "judged at eps)")
     attacks: str = arg("", "comma-separated attacks to score (default: every one that applies: "
                            f"{', '.join(SCORED_ATTACKS)}; an external node not the white-box {', '.join(WHITE_BOX)})")
+    via: str = arg("", "where the cells run: engine (in this process or as sweep tasks: the fast path) or graph (each "
+                       "cell a run of the ROS 2 graph; for a file, its own policy node, a sweep task of "
+                       f"{GRAPH_RUN_CPUS} CPUs in a ROS domain of its own); default: graph for policy:=external, which "
+                       "only the graph reaches, else engine")
     domain: str = arg("", "policy:=external: the ROS_DOMAIN_ID your node runs in, which every run joins")
-    keep_logs: bool = arg(False, "policy:=external: keep each graph run's log under <out>/logs/")
+    keep_logs: bool = arg(False, "through the graph: keep each graph run's log under <out>/logs/")
     seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)")
     episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)")
     adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)")
@@ -165,6 +176,11 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     return page
 
 
+def via_of(cfg: ScorecardConfig) -> str:
+    """Where the cells run: as ``via:=`` says, by default through the graph for an external node, else the engine."""
+    return cfg.via or ("graph" if cfg.policy == "external" else "engine")
+
+
 def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], list[float]]:
     """The budget, modes, attacks and scales, or an error naming the bad argument, before anything runs."""
     chosen = BUDGETS[check_name("budget", cfg.budget, tuple(BUDGETS))]
@@ -172,6 +188,8 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
                                  adversary_steps=cfg.adversary_steps or chosen.adversary_steps)
     modes = [check_name("mode", m, ATTACKED_MODES) for m in comma_list(cfg.modes)]
     external = cfg.policy == "external"
+    if check_name("via", via_of(cfg), VIAS) == "engine" and external:
+        raise ValueError("policy:=external is scored through the graph only (your node answers there): drop via:=engine")
     applicable = [a for a in SCORED_ATTACKS if not (external and a in WHITE_BOX)]
     attacks = [check_name("attack", a, applicable) for a in comma_list(cfg.attacks)] if cfg.attacks else applicable
     if external:
@@ -180,10 +198,11 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
                              "ROS_DOMAIN_ID=<n> ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), got "
                              f"domain:={cfg.domain or '(unset)'}")
         checked_domain(cfg.domain)
-        for group, name in (("aril_ros.collectors", "graph"), ("aril_ros.victims", "ros")):
-            plugins.load(group, name)  # the ROS side must be installed: says so if it is not
+        plugins.load("aril_ros.victims", "ros")  # the ROS side must be installed: says so if it is not
     else:
         resolve_policy(cfg.policy, cfg.env, modes[0])  # a missing or mismatched policy is reported first
+    if via_of(cfg) == "graph":
+        plugins.load("aril_ros.collectors", "graph")
     resolve_policy(cfg.expert, cfg.env)
     scales = sorted(float(x) for x in comma_list(cfg.scales))
     if 1.0 not in scales or min(scales) <= 0:
@@ -223,25 +242,26 @@ def victim_of(policy: str, env_id: str, mode: str) -> str:
 
 def run_cells(cfg: ScorecardConfig, budget: Budget, plan: list[tuple[str, str, float]], adversaries: dict,
               clock: Progress, out: Path) -> list[dict]:
-    """Every cell of ``plan`` (mode, attack, eps), in its order: for an external node one graph run after the other,
-    else as sweep tasks on the engine (their time on the clock: since the cell before, so the ETA is the pace of all
-    the workers). ARIL-A runs at its own eps when ``eps`` is, and scaled to ``eps`` otherwise (its perturbation times
-    eps / its eps)."""
+    """Every cell of ``plan`` (mode, attack, eps), in its order, as sweep tasks: on the engine, or as runs of the graph
+    (an external node's one after the other in this process, in its domain); their time on the clock is since the cell
+    before, so the ETA is the pace of all the workers. ARIL-A runs at its own eps when ``eps`` is, and scaled to
+    ``eps`` otherwise (its perturbation times eps / its eps)."""
     files = [str(adversaries[mode]) if attack == "aril_a" else "" for mode, attack, _ in plan]
+    if via_of(cfg) == "graph":
+        calls = [(graph_spec(cfg, budget, mode, attack, eps, file, out),) for (mode, attack, eps), file in zip(plan, files)]
+        external = cfg.policy == "external"
+        tasks = run_tasks(graph_cell, calls, 1 if external else cfg.workers, "" if external else cfg.address,
+                          cpus=GRAPH_RUN_CPUS, log=lambda *args, **kwargs: None)  # the clock says how far it is
+    else:
+        jobs = [dataclasses.asdict(EvalConfig(
+            env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps, attack_file=file,
+            rescale=bool(file), episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon,
+            **spsa_settings(attack, budget))) for (mode, attack, eps), file in zip(plan, files)]
+        tasks = run_tasks(engine_episodes, [(shipped_job(job),) for job in jobs], cfg.workers, cfg.address,
+                          log=lambda *args, **kwargs: None)
     cells: list[dict] = [{}] * len(plan)
-    if cfg.policy == "external":
-        for index, ((mode, attack, eps), file) in enumerate(zip(plan, files)):
-            started = time.monotonic()
-            cells[index] = cell_of(cfg, eps, graph_episodes(cfg, budget, mode, attack, eps, file, out))
-            clock.done(cell_text(plan[index], cells[index]), time.monotonic() - started)
-        return cells
-    jobs = [dataclasses.asdict(EvalConfig(
-        env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps, attack_file=file,
-        rescale=bool(file), episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon, **spsa_settings(attack, budget)))
-        for (mode, attack, eps), file in zip(plan, files)]
     last = time.monotonic()
-    for index, episodes in run_tasks(engine_episodes, [(shipped_job(job),) for job in jobs], cfg.workers, cfg.address,
-                                     log=lambda *args, **kwargs: None):  # the clock says how far it is
+    for index, episodes in tasks:
         cells[index] = cell_of(cfg, plan[index][2], episodes)
         now = time.monotonic()
         clock.done(cell_text(plan[index], cells[index]), now - last)
@@ -271,18 +291,28 @@ def engine_episodes(job: dict) -> list[EpisodeStats]:
     return episodes
 
 
-def graph_episodes(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
-                   out: Path) -> list[EpisodeStats]:
-    """The cell as a run of the graph with the user's node as its policy, read back from the run's log."""
+def graph_spec(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
+               out: Path) -> dict:
+    """A cell's graph run (:class:`aril_ros.dagger.RoundSpec`'s fields), its files marked to travel with its task: an
+    external node's in the node's domain, a file's in a free one of the task's node. The log is a file the task makes
+    with ``keep_logs``, else none (the task reads it back on its node)."""
+    external = cfg.policy == "external"
+    return {"env": cfg.env, "mode": mode, "attack": attack, "eps": eps,
+            "policy": cfg.policy if external else shipped(cfg.policy), "expert": shipped(cfg.expert),
+            "attack_file": shipped(adversary), "episodes": budget.episodes, "seed": cfg.seed, "horizon": cfg.horizon,
+            "domain": cfg.domain if external else "auto", "rescale": bool(adversary),
+            "record": Produced(out / "logs" / f"{mode}-{attack}-{eps:g}.mcap") if cfg.keep_logs else None,
+            **spsa_settings(attack, budget)}
+
+
+def graph_cell(spec: dict) -> list[EpisodeStats]:
+    """A cell as a run of the graph (a sweep task), every episode's figures read back from the run's log."""
+    spec = {k: str(v) if isinstance(v, Path) else v for k, v in spec.items()}  # a file's copy on the task's node
     with tempfile.TemporaryDirectory(prefix="aril_scorecard-") as scratch:
-        record = (out / "logs" if cfg.keep_logs else Path(scratch)) / f"{mode}-{attack}-{eps:g}.mcap"
+        record = Path(spec["record"] or Path(scratch) / "cell.mcap")
         record.parent.mkdir(parents=True, exist_ok=True)
         record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
-        spec = RoundSpec(env=cfg.env, mode=mode, attack=attack, eps=eps, policy="external", expert=cfg.expert,
-                         attack_file=adversary, episodes=budget.episodes, seed=cfg.seed, record=record,
-                         horizon=cfg.horizon, domain=cfg.domain, rescale=bool(adversary),
-                         **spsa_settings(attack, budget))
-        logged = read_run(plugins.load("aril_ros.collectors", "graph")(spec))
+        logged = read_run(plugins.load("aril_ros.collectors", "graph")(RoundSpec(**{**spec, "record": record})))
     return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
 
 
@@ -315,7 +345,8 @@ def markdown(payload: dict, cfg: ScorecardConfig) -> str:
     lines = [f"# Scorecard: {cfg.policy} on {cfg.env}", "",
              f"`{payload['command']}` (revision {payload['git_revision']}, {payload['created']}). Budget "
              f"{cfg.budget}: {budget.describe()}; env seeds {cfg.seed}..{cfg.seed + budget.episodes - 1} in every "
-             "cell (paired), ARIL-A trained against this policy. Drop: mean of the per-episode differences from clean, "
+             f"cell (paired), each {'a run of the ROS 2 graph' if via_of(cfg) == 'graph' else 'on the engine'}, "
+             "ARIL-A trained against this policy. Drop: mean of the per-episode differences from clean, "
              "in % of the clean return, with a Student-t 95% interval. Every episode is in `scorecard.json`.", ""]
     for mode, r in payload["modes"].items():
         worst = r["worst"]

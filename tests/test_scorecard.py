@@ -74,6 +74,8 @@ def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp
     ({"scales": "0.5,2"}, "scales:=0.5,2: positive multiples of eps, 1 among them"),
     ({"modes": "clean"}, "unknown mode 'clean'"),
     ({"policy": "external"}, r"policy:=external needs domain:=<the ROS_DOMAIN_ID your node runs in>"),
+    ({"policy": "external", "domain": "42", "via": "engine"}, "policy:=external is scored through the graph only"),
+    ({"via": "ros"}, "unknown via 'ros'; choose one of engine, graph"),
     ({"policy": "external", "domain": "181"}, r"domain:=181 is not an allowed ROS domain id: auto, 0-101 or 215-232"),
     ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, "
                                                                   "aril_a"),
@@ -122,6 +124,36 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     # the same adversary, trained on the node's answers, at its eps and (rescale:=true through the graph) at 2x
     assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]
     assert any("training ARIL-A against ros" in line for line in lines)
+
+
+def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_scores_it(small_card, tmp_path):
+    """via:=graph: every cell a run of the graph with a policy node serving the file, each a sweep task of
+    GRAPH_RUN_CPUS. On two nodes of that many CPUs, the first two runs go one to each node at once (each in a ROS
+    domain of its own), the file travels to them by content, their logs come back; the graph is bit-exact to the
+    engine, so the figures are the engine's."""
+    from ray.cluster_utils import Cluster
+
+    from aril_ros.registry import bundled_file
+    from aril_ros.scorecard import GRAPH_RUN_CPUS
+    from aril_ros.sweep import ensure_ray
+
+    ensure_ray()
+    mine = tmp_path / "mine.pt"
+    shutil.copy(bundled_file("dagger", "Swimmer-v5"), mine)
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": GRAPH_RUN_CPUS})
+    cluster.add_node(num_cpus=GRAPH_RUN_CPUS)
+    try:
+        scorecard(ScorecardConfig(policy=str(mine), via="graph", keep_logs=True, address=cluster.address,
+                                  attacks="fgsm", out=str(tmp_path / "card"), **SMALL), log=lambda *a, **k: None)
+    finally:
+        cluster.shutdown()
+    by_graph, by_engine = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"]
+                           for folder in (tmp_path / "card", small_card[1]))
+    assert by_graph["clean"] == by_engine["clean"]
+    assert by_graph["attacks"] == {"fgsm": by_engine["attacks"]["fgsm"]}  # white-box: the file is the node's victim
+    assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == [
+        "clean-none-0.mcap", "sensory-fgsm-0.3.mcap", "sensory-fgsm-0.6.mcap"]
+    assert "a run of the ROS 2 graph" in (tmp_path / "card" / "scorecard.md").read_text()
 
 
 def test_the_eta_counts_the_trainings_once_one_is_timed():
