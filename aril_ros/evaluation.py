@@ -11,7 +11,7 @@ from .args import arg
 from .attacks import QueryAttack, make_attack
 from .envs import HORIZON, layout_of
 from .policy import resolve_policy
-from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack
+from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack, for_task
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
 from .sweep import run_tasks, shipped
@@ -84,8 +84,10 @@ FILE_FIELDS = ("policy", "expert", "attack_file")
 
 def shipped_job(job: dict) -> dict:
     """``job`` (EvalConfig's fields) with the files it names marked to travel with its task: a cluster's nodes
-    share no filesystem."""
-    return {k: shipped(v) if k in FILE_FIELDS else v for k, v in job.items()}
+    share no filesystem (nor the user's data: a name of an onboarded env's policy travels as its file)."""
+    names = {"policy": for_task(job["policy"], job["env"], job.get("mode")),
+             "expert": for_task(job.get("expert", "expert"), job["env"])}
+    return {k: shipped(names.get(k, v)) if k in FILE_FIELDS else v for k, v in job.items()}
 
 
 def evaluate_all(jobs: list[dict], workers: int, address: str, log, label: str = "evaluations") -> list[dict]:

@@ -127,6 +127,20 @@ def bundled_file(policy: str, env_id: str, mode: str | None = None) -> Path:
                            f"Make one with `{train_hint(kind, env_id, mode, user)}`, or pass a policy file")
 
 
+def for_task(name: str, env_id: str, mode: str | None = None) -> str:
+    """``name`` as a task elsewhere must be given it: a bundled name whose file is the user's (``$ARIL_DATA``, an
+    onboarded env's, which another node, or a task working in a folder of its own, does not have) becomes that file's
+    path, to travel with the task; anything else stays as it is (a package file resolves in each node's own
+    installation, and a name that resolves to nothing says so where it is used)."""
+    if name not in BUNDLED_NAMES:
+        return name
+    try:
+        path = bundled_file(name, env_id, mode)
+    except BundledFileError:
+        return name
+    return name if path.is_relative_to(DATA_DIR) else str(path)
+
+
 def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Path:
     """Where the bundled ARIL-A trained against the bundled learner ``defense`` lives (whether or not
     it exists): the one against DAgger is ``attack:=aril_a``'s default."""

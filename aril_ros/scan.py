@@ -38,6 +38,7 @@ from .registry import (
     DEFAULT_POLICY,
     calibrated_eps,
     check_name,
+    for_task,
 )
 from .report.stats import summarise
 from .sweep import Produced, run_tasks, session, shipped
@@ -85,9 +86,10 @@ def grid_points(grid: str) -> list[dict[str, str]]:
     return [dict(zip(axes, combo)) for combo in itertools.product(*axes.values())]
 
 
-def train_point(argv: list[str], victim, out: Path) -> Path:
-    """One point's training (a task): ``aril train-adversary`` with ``argv``, against ``victim``, into ``out``."""
-    cfg = parse_args(AdversaryConfig, [*argv, f"victim:={victim}", f"out:={out}"])
+def train_point(argv: list[str], victim, expert, out: Path) -> Path:
+    """One point's training (a task): ``aril train-adversary`` with ``argv``, against ``victim`` with ``expert``'s
+    labels, into ``out``."""
+    cfg = parse_args(AdversaryConfig, [*argv, f"victim:={victim}", f"expert:={expert}", f"out:={out}"])
     return train_adversary(cfg, log=lambda *args, **kwargs: None)
 
 
@@ -99,18 +101,18 @@ def scan_adversary(cfg: ScanConfig, log=print) -> dict:
     eps = cfg.eps or calibrated_eps(cfg.env, cfg.mode)
     out = Path(cfg.out or f"runs/scan-{cfg.env}-{cfg.mode}-{Path(cfg.victim).stem}")
     out.mkdir(parents=True, exist_ok=True)
-    common = [f"env:={cfg.env}", f"mode:={cfg.mode}", f"eps:={eps}", f"expert:={cfg.expert}", f"steps:={cfg.steps}"]
+    common = [f"env:={cfg.env}", f"mode:={cfg.mode}", f"eps:={eps}", f"steps:={cfg.steps}"]
     argvs = [[*common, *(f"{k}:={v}" for k, v in point.items())] for point in points]
     for argv in argvs:
         parse_args(AdversaryConfig, argv)  # every point's values checked before anything trains
     files = [out / f"adversary-{k}.pt" for k in range(len(points))]
-    victim = shipped(cfg.victim)
+    victim, expert = shipped(for_task(cfg.victim, cfg.env, cfg.mode)), shipped(for_task(cfg.expert, cfg.env))
 
     with session(cfg.workers, cfg.address):
         # 1. the adversaries not trained yet, one task each
         todo = [k for k, file in enumerate(files) if not file.exists()]
         log(f"[scan] {len(points)} points, {len(todo)} to train ({cfg.steps:,} steps each), eps {eps:g}", flush=True)
-        for _ in run_tasks(train_point, [(argvs[k], victim, Produced(files[k])) for k in todo], cfg.workers,
+        for _ in run_tasks(train_point, [(argvs[k], victim, expert, Produced(files[k])) for k in todo], cfg.workers,
                            cfg.address, label="trainings", log=log):
             pass
 

@@ -70,6 +70,7 @@ from .registry import (
     bundled_file,
     calibrated_eps,
     check_name,
+    for_task,
 )
 from .report.stats import t95, worst_attack
 from .step import EpisodeStats, episode_stats, summarise_episodes
@@ -298,7 +299,8 @@ def graph_spec(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps
     with ``keep_logs``, else none (the task reads it back on its node)."""
     external = cfg.policy == "external"
     return {"env": cfg.env, "mode": mode, "attack": attack, "eps": eps,
-            "policy": cfg.policy if external else shipped(cfg.policy), "expert": shipped(cfg.expert),
+            "policy": cfg.policy if external else shipped(for_task(cfg.policy, cfg.env, mode)),
+            "expert": shipped(for_task(cfg.expert, cfg.env)),
             "attack_file": shipped(adversary), "episodes": budget.episodes, "seed": cfg.seed, "horizon": cfg.horizon,
             "domain": cfg.domain if external else "auto", "rescale": bool(adversary),
             "record": Produced(out / "logs" / f"{mode}-{attack}-{eps:g}.mcap") if cfg.keep_logs else None,

@@ -137,6 +137,27 @@ def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path
     assert ranked[1] == ranked[0]
 
 
+def test_names_of_the_users_data_travel_as_their_files(two_nodes, tmp_path, monkeypatch, make_policy):
+    """An onboarded env's ``dagger`` and ``expert`` live in the driver's $ARIL_DATA (here relative to the driver's
+    folder), which the cluster's nodes do not have: a sweep sends them as files, and gives what one process gives."""
+    from aril_ros.evaluation import evaluate_all
+    from aril_ros.policy import save_policy
+    from aril_ros.registry import user_path
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ARIL_DATA", "my-data")
+    for name, seed in (("expert", 1), ("dagger", 2)):
+        path = user_path(name, "Hopper-v5")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_policy(make_policy("Hopper-v5", seed=seed), path)
+    jobs = [{"env": "Hopper-v5", "policy": "dagger", "expert": "expert", "mode": mode, "attack": attack, "eps": 0.01,
+             "episodes": 2, "seed": 3000, "horizon": 30} for mode, attack in (("clean", "none"), ("sensory", "random"))]
+    on_cluster = evaluate_all(jobs, 2, two_nodes.address, quiet)
+    in_process = evaluate_all(jobs, 1, "", quiet)
+    assert [r["returns"] for r in on_cluster] == [r["returns"] for r in in_process]
+    assert [r["mean_expert_loss"] for r in on_cluster] == [r["mean_expert_loss"] for r in in_process]
+
+
 def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
     """Ctrl-C on the driver of a sweep on a local Ray, then the same sweep again: the finished tasks are not rerun.
     A cluster runs on this machine meanwhile (``two_nodes``): the driver's embedded Ray must be its own, not join it."""
