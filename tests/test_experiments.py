@@ -91,3 +91,21 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
                                                adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def"), **ONE), **QUIET)
     assert set(payload["rows"][0]["cells"]) == {"dagger", "aril"}
     assert payload["rows"][0]["cells"]["dagger"] == row["cells"]["dagger"]
+
+
+def test_a_victim_too_fragile_for_the_grid_is_calibrated_below_it(tmp_path, make_policy):
+    """Where even the grid's smallest eps breaks the rule (an onboarded Hopper under physical attack), halvings of it
+    are tried, and the chosen eps is the largest that keeps the rule, or the smallest tried, said so."""
+    from aril_ros.experiments import FINER
+
+    victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
+    expert = save_policy(make_policy("Swimmer-v5", seed=2), tmp_path / "expert.pt")
+    common = dict(envs="Swimmer-v5", modes="sensory", policy=str(victim), expert=str(expert), episodes=2, horizon=60,
+                  **ONE)
+    loose = calibrate_eps(CalibrationConfig(grid="0.5", max_drop=10.0, out=str(tmp_path / "loose"), **common), **QUIET)
+    assert [s["eps"] for s in loose["rows"][0]["sweep"]] == [0.5]  # the grid kept the rule: nothing more tried
+    sweep = calibrate_eps(CalibrationConfig(grid="0.5", max_drop=-10.0, out=str(tmp_path / "strict"), **common),
+                          **QUIET)["rows"][0]
+    assert [s["eps"] for s in sweep["sweep"]] == [0.5 / 2 ** k for k in range(FINER, -1, -1)]
+    assert sweep["chosen_eps"] == 0.5 / 2 ** FINER  # no eps can keep a rule of a negative drop
+    assert "(even the smallest eps broke the rule: the smallest tried)" in (tmp_path / "strict.md").read_text()
