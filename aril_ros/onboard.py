@@ -16,7 +16,8 @@ Then the expert is evaluated on 50 deterministic episodes. Where everything goes
     expert/<env>.pt, dagger/<env>.pt, eps_calibration.{json,md}     what the names and eps:=0 resolve to
     onboard/<env>/expert/     the expert's checkpoint (state.json, model.zip, replay_buffer.pkl)
     onboard/<env>/dagger/     the learner's run directory (state.json, data.npz, pi-<r>.pt)
-    onboard/<env>/onboard.json   the summary: files, returns, eps, seconds per stage
+    onboard/<env>/onboard.json   the summary: files, returns, eps, seconds per stage of this run and the
+                                 trainings' own seconds over every run (a resumed stage's whole time)
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from .envs import layout_of
 from .evaluation import EvalConfig, evaluate
 from .experiments import CalibrationConfig, calibrate_eps
 from .experts import ExpertConfig, train_expert
+from .policy import load_policy
 from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps, user_data_dir, user_path
 
 
@@ -70,7 +72,10 @@ def onboard(cfg: OnboardConfig, log=print) -> dict:
     summary = {"env": cfg.env, "expert": str(expert), "dagger": str(learner), "eps": eps,
                "expert_return": {"mean": final["mean_return"], "std": final["std_return"],
                                  "episodes": cfg.final_episodes, "seeds": f"{seeds.USER}..{seeds.USER + cfg.final_episodes - 1}"},
-               "seconds": timings}
+               "seconds": timings,
+               # a resumed or skipped stage took seconds here: what its file's training took in all, over every run
+               "trained_seconds": {name: load_policy(path, cfg.env).meta.provenance.get("train_seconds")
+                                   for name, path in (("expert", expert), ("dagger learner", learner))}}
     (home / "onboard.json").write_text(json.dumps(summary, indent=1) + "\n")
     log(f"[onboard {cfg.env}] done: expert {final['mean_return']:.1f} ± {final['std_return']:.1f} over "
         f"{cfg.final_episodes} episodes; eps {eps}; policy:=dagger, expert:=expert and eps:=0 now resolve for {cfg.env} "

@@ -24,10 +24,11 @@ def test_onboarding_makes_the_names_resolve_and_resumes_instead_of_redoing(tmp_p
     assert (home / "expert" / "replay_buffer.pkl").is_file() and (home / "dagger" / "state.json").is_file()
     assert {str(p): p.stat().st_mtime_ns for p in registry.DATA_DIR.rglob("*")} == package
 
-    # run again: every stage is there, nothing is trained or calibrated anew
+    # run again: every stage is there, nothing is trained or calibrated anew; the trainings' own seconds stay
     again = []
-    onboard(OnboardConfig(**TINY), log=lambda line, **_: again.append(line))
+    rerun = onboard(OnboardConfig(**TINY), log=lambda line, **_: again.append(line))
     assert not [line for line in again if "train-" in line or "calibrate-eps" in line], again
+    assert rerun["trained_seconds"] == summary["trained_seconds"] and summary["trained_seconds"]["expert"] > 0
     # more expert steps: the expert's training resumes from its checkpoint
     more = []
     onboard(OnboardConfig(**{**TINY, "expert_steps": 600}), log=lambda line, **_: more.append(line))
