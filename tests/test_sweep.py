@@ -167,12 +167,14 @@ def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
     import sys
     import time
 
-    # long enough that the rest cannot finish while the Ctrl-C reaches a driver on a loaded machine (8 jobs of 2
-    # episodes could: all finished before it in one run)
+    # long enough that the rest cannot finish while the Ctrl-C reaches a driver on a loaded machine
     jobs = [{"env": "Swimmer-v5", "policy": str(bundled_file("dagger", "Swimmer-v5")), "mode": "sensory",
              "attack": "random", "eps": 0.3, "episodes": 4, "seed": 3000 + 4 * i, "horizon": 1000} for i in range(12)]
     (tmp_path / "jobs.json").write_text(json.dumps(jobs))
-    script = ("import json, sys; from pathlib import Path; from aril_ros.report.jobs import run_jobs; "
+    # Ctrl-C as at a terminal: a suite started in the background by a shell inherits SIGINT ignored (twice, started
+    # so on a loaded machine, the driver ran every job to the end)
+    script = ("import json, signal, sys; from pathlib import Path; from aril_ros.report.jobs import run_jobs; "
+              "signal.signal(signal.SIGINT, signal.default_int_handler); "
               "run_jobs(json.loads(Path(sys.argv[1]).read_text()), Path(sys.argv[2]), 2, '', False, print)")
     cache = tmp_path / "cache"
     driver = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "jobs.json"), str(cache)],
