@@ -83,8 +83,9 @@ FILE_FIELDS = ("policy", "expert", "attack_file")
 
 
 def shipped_job(job: dict) -> dict:
-    """``job`` (EvalConfig's fields) with the files it names marked to travel with its task: a cluster's nodes
-    share no filesystem (nor the user's data: a name of an onboarded env's policy travels as its file)."""
+    """``job`` (EvalConfig's fields, or any job naming its env, mode and these files: a graph run's) with the files it
+    names marked to travel with its task: a cluster's nodes share no filesystem (nor the user's data: a name of an
+    onboarded env's policy travels as its file)."""
     names = {"policy": for_task(job["policy"], job["env"], job.get("mode")),
              "expert": for_task(job.get("expert", "expert"), job["env"])}
     return {k: shipped(names.get(k, v)) if k in FILE_FIELDS else v for k, v in job.items()}

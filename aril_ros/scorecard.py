@@ -70,11 +70,10 @@ from .registry import (
     bundled_file,
     calibrated_eps,
     check_name,
-    for_task,
 )
 from .report.stats import t95, worst_attack
 from .step import EpisodeStats, episode_stats, summarise_episodes
-from .sweep import Produced, run_tasks, session, shipped
+from .sweep import Produced, run_tasks, session
 
 
 @dataclass(frozen=True)
@@ -104,11 +103,11 @@ BUDGETS = {"quick": Budget(episodes=5, adversary_steps=120_000, spsa_iterations=
 SCALES = "0.25,0.5,1,2"
 """The eps sweep, as multiples of the mode's eps (the default of ``scales:=``)."""
 SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
+"""In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 VIAS = ("engine", "graph")
 GRAPH_RUN_CPUS = 2
 """What a graph run (a cell through the graph) declares as a sweep task: its five processes work in lockstep, about
 4.5 ms of CPU per step at 420 steps/s here, i.e. two cores busy (issue 16's profile)."""
-"""In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 
 
 @dataclass
@@ -297,14 +296,12 @@ def graph_spec(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps
     """A cell's graph run (:class:`aril_ros.dagger.RoundSpec`'s fields), its files marked to travel with its task: an
     external node's in the node's domain, a file's in a free one of the task's node. The log is a file the task makes
     with ``keep_logs``, else none (the task reads it back on its node)."""
-    external = cfg.policy == "external"
-    return {"env": cfg.env, "mode": mode, "attack": attack, "eps": eps,
-            "policy": cfg.policy if external else shipped(for_task(cfg.policy, cfg.env, mode)),
-            "expert": shipped(for_task(cfg.expert, cfg.env)),
-            "attack_file": shipped(adversary), "episodes": budget.episodes, "seed": cfg.seed, "horizon": cfg.horizon,
-            "domain": cfg.domain if external else "auto", "rescale": bool(adversary),
-            "record": Produced(out / "logs" / f"{mode}-{attack}-{eps:g}.mcap") if cfg.keep_logs else None,
-            **spsa_settings(attack, budget)}
+    return shipped_job({
+        "env": cfg.env, "mode": mode, "attack": attack, "eps": eps, "policy": cfg.policy, "expert": cfg.expert,
+        "attack_file": adversary, "episodes": budget.episodes, "seed": cfg.seed, "horizon": cfg.horizon,
+        "domain": cfg.domain if cfg.policy == "external" else "auto", "rescale": bool(adversary),
+        "record": Produced(out / "logs" / f"{mode}-{attack}-{eps:g}.mcap") if cfg.keep_logs else None,
+        **spsa_settings(attack, budget)})
 
 
 def graph_cell(spec: dict) -> list[EpisodeStats]:
