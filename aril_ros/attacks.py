@@ -59,8 +59,11 @@ class RandomAttack(Attack):
     def propose(self, true_obs, rngs):
         n_pos = self.layout.n_position
         delta = np.zeros_like(true_obs)
-        for i, rng in enumerate(rngs):
-            delta[i, :n_pos] = rng.uniform(-self.eps, self.eps, n_pos)
+        # each row the draws of its episode's generator, then scaled all at once: bit for bit
+        # rng.uniform(-eps, eps) (-eps + 2 eps * u, the same two roundings), at a third of its cost per row
+        for row, rng in zip(delta, rngs):
+            rng.random(out=row[:n_pos])
+        delta[:, :n_pos] = -self.eps + 2 * self.eps * delta[:, :n_pos]
         return delta
 
 

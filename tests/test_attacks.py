@@ -80,3 +80,16 @@ def test_spsa_is_black_box_bounded_and_near_fgsm(victim_expert):
     random = make_attack("random", layout, 0.2).perturb(obs, rngs())
     gain = lambda d: (one_step_loss(victim, expert, obs, d) - one_step_loss(victim, expert, obs, 0 * d)).mean()  # noqa: E731
     assert gain(delta) > 0.8 * gain(fgsm) and gain(delta) > 3 * gain(random), (gain(delta), gain(fgsm), gain(random))
+
+
+@pytest.mark.parametrize("env_id, eps", [("HalfCheetah-v5", 0.04), ("Ant-v5", 0.03), ("Swimmer-v5", 0.3)])
+def test_random_noise_is_each_episodes_uniform_draws(env_id, eps):
+    """The noise of row i is ``rng_i.uniform(-eps, eps)`` on the zero-order entries, bit for bit (the engine and the
+    graph's attacker draw it so; every table's random row and DR's training data rest on it), and zero elsewhere."""
+    layout = layout_of(env_id)
+    obs = np.zeros((5, layout.obs_dim))
+    delta = make_attack("random", layout, eps).perturb(obs, [np.random.default_rng([7, i]) for i in range(5)])
+    for i, row in enumerate(delta):
+        expected = np.random.default_rng([7, i]).uniform(-eps, eps, layout.n_position)
+        np.testing.assert_array_equal(row[:layout.n_position], expected)
+        assert np.all(row[layout.n_position:] == 0)
