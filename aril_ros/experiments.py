@@ -27,7 +27,7 @@ from .adversary import load_adversary, ready_adversary
 from .envs import HORIZON
 from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate_all
-from .provenance import stamp
+from .provenance import portable, stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
                        bundled_file, calibrated_eps, user_calibration)
 from .report.stats import summarise, worst_attack
@@ -338,7 +338,7 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
                 "worst": worst, **attacked[worst],
                 "drop": round(1.0 - attacked[worst]["mean"] / reference, 4) if reference else 0.0,
                 "episodes": cfg.episodes, "eps": eps, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
-                "policy": policy.split("aril_ros/")[-1], "adversary": load_adversary(adversary).meta["provenance"],
+                "policy": portable(policy), "adversary": load_adversary(adversary).meta["provenance"],
                 **made}
             log(f"[defense-table {cfg.mode}] {env} {DEFENSES[defense]}: clean {cells[defense]['clean']:.1f}, worst "
                 f"{ATTACKS[worst]} {cells[defense]['mean']:.1f} ± {cells[defense]['std']:.1f}", flush=True)

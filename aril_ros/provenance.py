@@ -35,8 +35,23 @@ def versions() -> dict:
     return {name: metadata.version(name) for name in ("mujoco", "gymnasium", "numpy", "torch")}
 
 
+CHECKOUT = Path(__file__).resolve().parents[1]
+"""The folder holding the ``aril_ros`` package: a checkout's root, from which recorded paths are read."""
+
+
+def portable(value):
+    """``value`` as it is, unless it is an absolute path inside :data:`CHECKOUT`: then that path relative to it.
+    The bundled files and tables are committed and read on other machines, where this machine's folder means
+    nothing (``aril defense-table`` hands the trainer the bundled victim's absolute path, for one)."""
+    if isinstance(value, str) and Path(value).is_absolute() and Path(value).is_relative_to(CHECKOUT):
+        return str(Path(value).relative_to(CHECKOUT))
+    return value
+
+
 def stamp(prog: str, cfg) -> dict:
-    """``command``, ``settings``, ``git_revision``, ``versions`` and ``created`` for a run of ``prog`` with ``cfg``."""
+    """``command``, ``settings``, ``git_revision``, ``versions`` and ``created`` for a run of ``prog`` with ``cfg``,
+    its paths inside the checkout relative to it (:func:`portable`)."""
+    cfg = dataclasses.replace(cfg, **{f.name: portable(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)})
     return {"command": command_line(prog, cfg), "settings": dataclasses.asdict(cfg), "git_revision": git_revision(),
             "versions": versions(), "created": now()}
 

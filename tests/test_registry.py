@@ -72,3 +72,16 @@ def test_settings_travel_as_json_in_provenance():
     assert settings_of(made, LearnerConfig) == cfg and made["command"].startswith("aril train-learner algorithm:=aril")
     with pytest.raises(ValueError, match="records no settings"):
         settings_of({"command": "aril train-bc"}, LearnerConfig)
+
+
+def test_provenance_records_paths_inside_the_checkout_relative_to_it(tmp_path):
+    """What ``aril defense-table`` trains from the bundled files' absolute paths is committed: it must name them from
+    the checkout's root, not from this machine's folder; a path elsewhere (the user's) stays as given."""
+    from aril_ros.adversary import AdversaryConfig
+    from aril_ros.provenance import CHECKOUT, stamp
+
+    victim = CHECKOUT / "aril_ros" / "data" / "aril" / "Swimmer-v5-physical.pt"
+    made = stamp("aril train-adversary", AdversaryConfig(victim=str(victim), out=str(tmp_path / "adversary.pt")))
+    assert made["settings"]["victim"] == "aril_ros/data/aril/Swimmer-v5-physical.pt"
+    assert " victim:=aril_ros/data/aril/Swimmer-v5-physical.pt " in made["command"]
+    assert made["settings"]["out"] == str(tmp_path / "adversary.pt")

@@ -44,7 +44,7 @@ from pathlib import Path
 
 from ..args import arg, comma_list
 from ..envs import HORIZON
-from ..provenance import git_revision, stamp
+from ..provenance import git_revision, portable, stamp
 from ..registry import (
     ATTACKED_MODES,
     DEFAULT_ENV,
@@ -64,8 +64,6 @@ from .text import report_markdown
 
 __all__ = ["ReportConfig", "build_report"]
 
-REPO = Path(__file__).resolve().parents[2]
-"""The checkout this package runs from (for repository-relative file names in the report's JSON)."""
 BUDGETS = {
     "quick": dict(seeds="0", episodes=20, sweep_episodes=10, sweep_scales="0.5,2",
                   sweep_attacks=",".join(THREATS), bench_steps=10_000),
@@ -129,8 +127,7 @@ def _uncommitted() -> str:
 
 
 def _relative(path: Path) -> str:
-    path = Path(path).resolve()
-    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
+    return portable(str(Path(path).resolve()))
 
 
 def report_stamp(cfg: ReportConfig) -> dict:
