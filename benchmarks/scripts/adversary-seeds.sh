@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."  # the checkout
 env=$1 mode=$2 eps=$3 policy=$4 seed=$5
-out=runs/adversary-seeds/$(basename ${policy%.pt})-$env-$mode-seed$seed.pt
+out=runs/adversary-seeds/$(echo ${policy%.pt} | tr / _)-seed$seed.pt  # the whole path: bundled files share names
 mkdir -p runs/adversary-seeds
 [ -f $out ] || .venv/bin/aril train-adversary env:=$env mode:=$mode eps:=$eps victim:=$policy steps:=1000000 seed:=$seed \
   out:=$out > $out.log 2>&1
