@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue 14: does the learner's width decide its robustness? The expert (256x256) keeps 4655 of its 5463 under a
 # fresh ARIL-A on HalfCheetah physical, where every 64x64 learner falls to 442 or below. Trains learner $1 (aril:
-# the bundled settings, 500k-step round adversaries warm-started; dr: the bundled DR's) with $5 hidden units in env
+# the bundled settings, 500k-step round adversaries warm-started; dr, dagger: the bundled DR's, DAgger's; DAgger collects
+# clean whatever the mode, which then says only how it is judged) with $5 hidden units in env
 # $2, mode $3, eps $4, then judges it as the defense table does (benchmarks/scripts/adversary-seeds.sh, ARIL-A seeds
 # 0, 1, 2; aril-fresh-worst.sh). The run directory is under results/i14-fresh/ and resumes after its last round.
 #   benchmarks/scripts/learner-width.sh aril HalfCheetah-v5 physical 0.03 256
