@@ -319,16 +319,21 @@ def select_best(cfg: LearnerConfig, run: LearnerRun, log) -> Path:
     """The theorem (like DAgger's) bounds the best of the learners pi_1..pi_R, each judged here by its
     own round: its return under the attack of that round (for ARIL, the adversary trained against it)."""
     best = max(run.rounds[1:], key=lambda rec: rec["return"])
-    policy = load_policy(run.policy_file(best["round"]), cfg.env)
-    policy.meta.provenance.update({
-        "selected": f"pi_{best['round']}", "rounds": cfg.rounds, "train_seconds": round(time.time() - run.started, 1),
-        "selection": "the learner with the best return in its own round"
-                     + (f" ({run.mode}, {run.attack} eps {cfg.eps})" if run.attack != "none" else " (clean)"),
-        "rounds_log": run.rounds, "created": now(),
-    })
-    out = save_policy(policy, cfg.out or f"runs/{run.name}.pt")
+    out = save_selected(cfg, run, best["round"], "the learner with the best return in its own round"
+                        + (f" ({run.mode}, {run.attack} eps {cfg.eps})" if run.attack != "none" else " (clean)"))
     log(json.dumps({"out": str(out), "selected": f"pi_{best['round']}", "return": round(best["return"], 1)}))
     return out
+
+
+def save_selected(cfg: LearnerConfig, run: LearnerRun, r: int, selection: str, **provenance) -> Path:
+    """pi_r written to ``cfg.out`` (default ``runs/<run name>.pt``), its provenance saying how it was chosen
+    (``selection``, and any further ``provenance`` fields) beside the run's round records."""
+    policy = load_policy(run.policy_file(r), cfg.env)
+    policy.meta.provenance.update({
+        "selected": f"pi_{r}", "rounds": cfg.rounds, "train_seconds": round(time.time() - run.started, 1),
+        "selection": selection, "rounds_log": run.rounds, "created": now(), **provenance,
+    })
+    return save_policy(policy, cfg.out or f"runs/{run.name}.pt")
 
 
 def _save_atomic(path: Path, write) -> None:

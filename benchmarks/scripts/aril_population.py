@@ -15,17 +15,17 @@ with ``benchmarks/scripts/adversary-seeds.sh`` (ARIL-A seeds 0, 1, 2) and ``aril
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
-import time
+
+from aril_noise_mix import collect_with_noise  # the sibling script (this script's folder is on the path)
 
 from aril_ros import dagger, seeds
 from aril_ros.args import parse_args
 from aril_ros.attacks import make_attack
 from aril_ros.dataset import DaggerDataset
-from aril_ros.policy import load_policy, save_policy
 
-ROUND_COLLECT = dagger.collect
 POPULATION_SEEDS = 1_000
 """Offset, inside the round's block of env seeds, of the episodes under earlier adversaries (the round's own and
 its noise episodes take the block's first seeds)."""
@@ -36,21 +36,20 @@ def adversary_file(run, r: int) -> str:
 
 
 def collect_with_population(cfg, run, r, round_adversary):
-    """The round's own collection, then (r > 0) the same learner under random noise on the same env seeds, and one
-    episode under each earlier round's adversary."""
-    record, part = ROUND_COLLECT(cfg, run, r, round_adversary)
+    """The round's own collection and its noise episodes (:func:`aril_noise_mix.collect_with_noise`), then (r > 0)
+    one episode under each earlier round's adversary."""
+    record, part = collect_with_noise(cfg, run, r, round_adversary)
     if r == 0:
         return record, part
     learner, first = run.learner(r), seeds.collection(cfg.seed, r)
-    noise = run.rollout(learner, make_attack("random", run.layout, cfg.eps), run.mode, cfg.episodes, first)
-    parts, earlier = [part, DaggerDataset.from_trajectories(noise)], []
+    parts, earlier = [part], []
     for s in range(1, r):
         attack = make_attack("aril_a", run.layout, cfg.eps, victim=learner, expert=run.expert,
                              adversary=adversary_file(run, s), mode=run.mode)
         traj = run.rollout(learner, attack, run.mode, 1, first + POPULATION_SEEDS + s)
         parts.append(DaggerDataset.from_trajectories(traj))
         earlier.append(round(float(traj.returns.mean()), 1))
-    record.update(noise_return=float(noise.returns.mean()), earlier_adversary_returns=earlier)
+    record["earlier_adversary_returns"] = earlier
     return record, DaggerDataset.concatenate(parts)
 
 
@@ -71,13 +70,10 @@ def select_by_population(cfg, run, log):
         log(f"[aril-population {run.name}] pi_{r}: worst {matrix[f'pi_{r}']['worst']:.1f}  {row}", flush=True)
     (run.dir / "selection.json").write_text(json.dumps(matrix, indent=1))
     best = max(learners, key=lambda r: matrix[f"pi_{r}"]["worst"])
-    policy = load_policy(run.policy_file(best), cfg.env)
-    policy.meta.provenance.update({
-        "selected": f"pi_{best}", "rounds": cfg.rounds, "train_seconds": round(time.time() - run.started, 1),
-        "selection": f"the best worst case under every round's adversary and random noise ({run.mode}, eps {cfg.eps}; "
-                     f"{cfg.eval_episodes} episodes from env seed {seeds.SELECTION})",
-        "rounds_log": run.rounds, "selection_matrix": matrix})
-    out = save_policy(policy, cfg.out or f"runs/{run.name}-population.pt")
+    cfg = dataclasses.replace(cfg, out=cfg.out or f"runs/{run.name}-population.pt")
+    out = dagger.save_selected(cfg, run, best, f"the best worst case under every round's adversary and random noise "
+                               f"({run.mode}, eps {cfg.eps}; {cfg.eval_episodes} episodes from env seed "
+                               f"{seeds.SELECTION})", selection_matrix=matrix)
     log(json.dumps({"out": str(out), "selected": f"pi_{best}", "worst": matrix[f"pi_{best}"]["worst"]}))
     return out
 
