@@ -455,26 +455,35 @@ def observe_sims(sims: list[MujocoSim]) -> np.ndarray:
     return rules.observe(frame)
 
 
-def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = SERIAL) -> np.ndarray:
+def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = SERIAL,
+                 observation: np.ndarray | None = None) -> np.ndarray:
     """The physical attack on each simulator (``delta[i]`` for ``sims[i]``, observation coordinates): its
     real zero-order state moved by the one rule the graph's attacker applies too
     (:func:`aril_ros.step.perturb_qpos`), then ``mj_forward`` where the env's rules read derived quantities
     (:attr:`ForwardRules.reads_kinematics`; always for an env gymnasium steps itself). Returns the new
-    observations."""
+    observations; ``observation``, the simulators' observations before the move, spares reading them again where
+    no ``mj_forward`` is needed."""
 
     model = sims[0].model  # one model for all, as in step_sims
     rules = sims[0].rules
-    forward = rules is None or rules.reads_kinematics
+    if rules is None or rules.reads_kinematics:
+        def move(i: int) -> None:
+            perturb_qpos(sims[i].layout, sims[i].qpos, delta[i])
+            mujoco.mj_forward(model, sims[i].data)
 
-    def move(i: int) -> None:
-        sim = sims[i]
-        perturb_qpos(sim.layout, sim.qpos, delta[i])
-        if forward:
-            mujoco.mj_forward(model, sim.data)
-
-    # without mj_forward a move is a few numpy additions: handing them to the pool's threads costs more than them
-    (pool if forward else SERIAL).run(move, len(sims))
-    return observe_sims(sims)
+        pool.run(move, len(sims))
+        return observe_sims(sims)
+    # a few numpy additions per simulator: handing them to the pool's threads costs more than them
+    layout = sims[0].layout
+    for sim, row in zip(sims, delta):
+        perturb_qpos(layout, sim.qpos, row)
+    if observation is None:
+        return observe_sims(sims)
+    # these rules observe the moved qpos entries as they are (ForwardRules.observe), so the same additions on the
+    # old observation give the new one bit for bit, without a pass over every simulator (3% of a physical step)
+    moved = np.array(observation, dtype=np.float64)
+    moved[:, layout.position] += delta[:, layout.position]
+    return moved
 
 
 class MujocoSim:

@@ -73,7 +73,7 @@ class SimBatch:
         """What the policy sees, by the mode's rule: ``s + delta``, or (physical) the observation of each
         simulator after its real state has been moved by ``delta``."""
         if mode == "physical":
-            return perturb_sims(self._rows(rows), delta, self.pool)
+            return perturb_sims(self._rows(rows), delta, self.pool, observation=true_obs)
         return sensory_observation(true_obs, delta)
 
     def step(self, action: np.ndarray, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

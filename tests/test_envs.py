@@ -200,9 +200,10 @@ def test_batched_step_is_gymnasiums_bit_for_bit(env_id):
     batch.close()
 
 
-@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Ant-v5"])
+@pytest.mark.parametrize("env_id", BATCHED_ENVS)
 def test_batched_step_and_perturbation_do_not_depend_on_the_batch(env_id):
-    """32 simulators on the pool step, perturb and observe each row as one simulator alone does."""
+    """32 simulators on the pool step, perturb and observe each row as one simulator alone does (the batch is given
+    its observations, which spare reading them again where no mj_forward is needed; one simulator alone reads them)."""
     from aril_ros.rollout import SimBatch
 
     n, lay = 32, layout_of(env_id)
