@@ -77,6 +77,8 @@ class ExpertConfig:
     algo: str = arg("sac", "sac (off-policy, sample-efficient) or ppo (on-policy, cheap per step)")
     steps: int = arg(300_000, "environment steps of training")
     seed: int = arg(0, "seed of the algorithm and of its env")
+    hidden: int = arg(0, "width of the actor's and the critic's two hidden layers (0: stable-baselines3's default, "
+                         "256 for sac and 64 for ppo)", low=0)
     eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
     eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
     out: str = arg("", "where to write the expert (default: expert/<env>.pt in the user data folder, $ARIL_DATA, "
@@ -109,6 +111,8 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
     out = Path(cfg.out) if cfg.out else user_path("expert", cfg.env)
     defaults, per_env = HYPERPARAMETERS[cfg.algo]
     hyper = {**defaults, **per_env.get(cfg.env, {})}
+    if cfg.hidden:
+        hyper["policy_kwargs"] = {"net_arch": [cfg.hidden, cfg.hidden]}
     made_by = made_by or stamp("aril train-expert", cfg)
     command = made_by["command"]
     wrap_env = wrap_env or (lambda env: env)
@@ -133,6 +137,9 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
         else:
             model = PPO("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
         export = lambda provenance: export_ppo_actor(model, env, cfg.env, provenance)  # noqa: E731
+    trained_hidden = export({}).meta.hidden
+    if resume and cfg.hidden and trained_hidden != [cfg.hidden] * 2:  # a loaded model keeps its own layers
+        raise ValueError(f"{resume} holds a network with hidden layers {trained_hidden}, not hidden:={cfg.hidden}")
     started = time.time() - state.get("train_seconds", 0.0)
     best = {"mean_return": state.get("best_mean_return", -np.inf)}
     commands = state.get("commands", []) + [command]

@@ -37,6 +37,7 @@ class GailConfig:
     expert: str = arg("expert", "the demonstrator: a bundled name or a policy file")
     demos: int = arg(10, f"clean expert demonstrations (1000 steps each, env seeds {seeds.GAIL_DEMOS}...)")
     steps: int = arg(1_000_000, "generator (PPO) environment steps")
+    hidden: int = arg(64, "width of the generator's (the learner's) two hidden layers, and its critic's", low=1)
     disc_hidden: int = arg(64, "width of the discriminator's two hidden layers")
     disc_lr: float = arg(3e-4, "discriminator Adam learning rate")
     disc_epochs: int = arg(2, "discriminator passes over each rollout")
@@ -135,7 +136,8 @@ def train_gail(cfg: GailConfig, log=print) -> Path:
     provenance = {"algorithm": "GAIL (generator: stable-baselines3 PPO)", "expert": cfg.expert,
                   "expert_provenance": expert.meta.provenance, "demos": cfg.demos,
                   "discriminator": {"hidden": cfg.disc_hidden, "lr": cfg.disc_lr, "epochs": cfg.disc_epochs}}
-    generator = ExpertConfig(env=cfg.env, algo="ppo", steps=cfg.steps, seed=cfg.seed, eval_every=cfg.eval_every,
+    generator = ExpertConfig(env=cfg.env, algo="ppo", steps=cfg.steps, seed=cfg.seed, hidden=cfg.hidden,
+                             eval_every=cfg.eval_every,
                              eval_episodes=cfg.eval_episodes, out=cfg.out or f"runs/gail-{cfg.env}.pt",
                              threads=cfg.threads)
     return train_expert(generator, log=log, wrap_env=wrap, on_rollout_end=train_discriminator, label="train-gail",

@@ -120,7 +120,8 @@ def test_train_expert_resumes_from_a_checkpoint(tmp_path):
 
     quiet = dict(log=lambda *a, **k: None)
     common = dict(env="Swimmer-v5", algo="ppo", eval_every=2048, eval_episodes=1, out=str(tmp_path / "e.pt"))
-    train_expert(ExpertConfig(steps=2048, checkpoint=str(tmp_path / "ckpt"), **common), **quiet)
+    train_expert(ExpertConfig(steps=2048, hidden=16, checkpoint=str(tmp_path / "ckpt"), **common), **quiet)
+    assert load_policy(tmp_path / "e.pt").meta.hidden == [16, 16]
     state = json.loads((tmp_path / "ckpt" / "state.json").read_text())
     assert state["steps"] == 2048 and state["algo"] == "ppo"
     train_expert(ExpertConfig(steps=4096, resume=str(tmp_path / "ckpt"), checkpoint=str(tmp_path / "ckpt"),
@@ -129,5 +130,8 @@ def test_train_expert_resumes_from_a_checkpoint(tmp_path):
     assert len(json.loads((tmp_path / "ckpt" / "state.json").read_text())["commands"]) == 2
     prov = load_policy(tmp_path / "e.pt").meta.provenance
     assert prov["steps"] in (2048, 4096)
+    assert load_policy(tmp_path / "e.pt").meta.hidden == [16, 16]  # hidden:=0: the resumed model's own
+    with pytest.raises(ValueError, match=r"hidden layers \[16, 16\], not hidden:=32"):
+        train_expert(ExpertConfig(steps=6144, hidden=32, resume=str(tmp_path / "ckpt"), **common), **quiet)
     with pytest.raises(ValueError, match="holds a ppo run on Swimmer-v5"):
         train_expert(ExpertConfig(env="Swimmer-v5", algo="sac", resume=str(tmp_path / "ckpt")), **quiet)

@@ -21,9 +21,10 @@ def test_the_wrapper_pays_the_discriminators_reward_and_keeps_the_pairs():
 
 def test_a_short_gail_run_writes_a_policy_and_its_discriminator_learns(tmp_path):
     lines = []
-    out = train_gail(GailConfig(env="Swimmer-v5", steps=4096, eval_every=2048, eval_episodes=1, demos=1,
+    out = train_gail(GailConfig(env="Swimmer-v5", steps=4096, hidden=32, eval_every=2048, eval_episodes=1, demos=1,
                                 out=str(tmp_path / "gail.pt")), log=lambda m, **k: lines.append(m))
     policy = load_policy(out, "Swimmer-v5")
+    assert policy.meta.hidden == [32, 32]
     assert policy.meta.provenance["algorithm"].startswith("GAIL")
     assert policy.meta.provenance["command"].startswith("aril train-gail env:=Swimmer-v5")
     losses = [float(line.rsplit("disc loss", 1)[1]) for line in lines if "disc loss" in line]
