@@ -150,11 +150,12 @@ def trained_for(adversary: Path, eps: float) -> bool:
 
 
 def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
-                    retrain: bool, log) -> Path:
-    """``adversary``, trained against ``victim`` first when it is missing, of another eps, or ``retrain``."""
+                    retrain: bool, log, seed: int = 0) -> Path:
+    """``adversary``, trained (with training seed ``seed``) against ``victim`` first when it is missing, of another
+    eps, or ``retrain``."""
     if retrain or not trained_for(adversary, eps):
         train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
-                                        out=str(adversary)), log=log)
+                                        seed=seed, out=str(adversary)), log=log)
     return adversary
 
 

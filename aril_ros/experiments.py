@@ -284,8 +284,12 @@ class DefenseTableConfig:
     seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)")
     k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
     adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense")
+    adversary_seeds: int = arg(1, "ARIL-As trained against each defense, with training seeds 0, 1, ...: the cell's "
+                                  "ARIL-A is the strongest of them (one adversary's seed can decide more than its "
+                                  "training, results/aril_a_tuning.md)", low=1, high=10)
     adversary_dir: str = arg("", "where the adversaries against each defense go (default: the bundled ones, "
-                                 "aril_ros/data/defense-adversary/); reused when they exist with the same eps")
+                                 "aril_ros/data/defense-adversary/; seed k > 0's name ends in -seed<k>); reused when "
+                                 "they exist with the same eps")
     retrain: bool = arg(False, "train the adversaries even if they exist")
     horizon: int = arg(HORIZON, "steps per episode")
     workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
@@ -312,16 +316,22 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
         jobs[env, reference, "none"] = EvalConfig(policy=reference, mode="clean", **common)
         for defense in defenses:
             policy = str(bundled_file(defense, env, cfg.mode))
-            adversary = (Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt" if cfg.adversary_dir
-                         else adversary_path(env, cfg.mode, defense))
-            ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain,
-                            log)
-            settings[env, defense] = (eps, policy, adversary)
+            first = (Path(cfg.adversary_dir) / f"{env}-{cfg.mode}-{defense}.pt" if cfg.adversary_dir
+                     else adversary_path(env, cfg.mode, defense))
+            adversaries = [first if seed == 0 else first.with_name(f"{first.stem}-seed{seed}.pt")
+                           for seed in range(cfg.adversary_seeds)]
+            for seed, adversary in enumerate(adversaries):
+                ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain,
+                                log, seed=seed)
+            settings[env, defense] = (eps, policy, adversaries)
             jobs[env, policy, "none"] = EvalConfig(policy=policy, mode="clean", **common)
             for threat in THREATS:
-                jobs[env, policy, threat] = EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
-                                                       attack_file=str(adversary) if threat == "aril_a" else "",
-                                                       **common)
+                if threat != "aril_a":
+                    jobs[env, policy, threat] = EvalConfig(policy=policy, mode=cfg.mode, attack=threat, eps=eps,
+                                                           **common)
+            for adversary in adversaries:
+                jobs[env, policy, str(adversary)] = EvalConfig(policy=policy, mode=cfg.mode, attack="aril_a",
+                                                               eps=eps, attack_file=str(adversary), **common)
     cell = dict(zip(jobs, map(_cell, evaluate_all([asdict(j) for j in jobs.values()], cfg.workers, cfg.address,
                                                   log))))
     fresh = []
@@ -329,8 +339,11 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
         reference = cell[env, str(bundled_file(DEFAULT_POLICY, env)), "none"]["mean"]
         cells = {}
         for defense in defenses:
-            eps, policy, adversary = settings[env, defense]
-            attacked = {threat: cell[env, policy, threat] for threat in THREATS}
+            eps, policy, adversaries = settings[env, defense]
+            per_seed = [cell[env, policy, str(adversary)] for adversary in adversaries]
+            strongest = min(range(len(adversaries)), key=lambda seed: per_seed[seed]["mean"])  # seed 0 wins a tie
+            attacked = {threat: per_seed[strongest] if threat == "aril_a" else cell[env, policy, threat]
+                        for threat in THREATS}
             worst = worst_attack(attacked)
             clean = cell[env, policy, "none"]
             cells[defense] = {
@@ -338,8 +351,8 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
                 "worst": worst, **attacked[worst],
                 "drop": round(1.0 - attacked[worst]["mean"] / reference, 4) if reference else 0.0,
                 "episodes": cfg.episodes, "eps": eps, "seeds": f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}",
-                "policy": portable(policy), "adversary": load_adversary(adversary).meta["provenance"],
-                **made}
+                "policy": portable(policy), "adversary": load_adversary(adversaries[strongest]).meta["provenance"],
+                **({"aril_a_seeds": [c["mean"] for c in per_seed]} if len(adversaries) > 1 else {}), **made}
             log(f"[defense-table {cfg.mode}] {env} {DEFENSES[defense]}: clean {cells[defense]['clean']:.1f}, worst "
                 f"{ATTACKS[worst]} {cells[defense]['mean']:.1f} ± {cells[defense]['std']:.1f}", flush=True)
         fresh.append({"env": env, "dagger_clean": reference, "cells": cells})
@@ -359,6 +372,14 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
     return payload
 
 
+def _seeds_text(payload: dict) -> str:
+    """How many ARIL-As each cell took the strongest of, where more than one."""
+    counts = sorted({len(c.get("aril_a_seeds", [0])) for r in payload["rows"] for c in r["cells"].values()})
+    if counts == [1]:
+        return ""
+    return f" (the strongest of {' or '.join(map(str, counts))}, trained with seeds 0, 1, ...)"
+
+
 def defense_markdown(payload: dict) -> str:
     """The Robust IL rows: each defense's worst-attack mean ± std per env (drop, attack), its overall drop."""
     envs = [r["env"] for r in payload["rows"]]
@@ -367,8 +388,9 @@ def defense_markdown(payload: dict) -> str:
     table = "Table 1" if payload["mode"] == "sensory" else "Table 2"
     lines = [f"# {table} ({payload['mode']} attacks), Robust IL rows", "",
              "Each defense's return under the strongest of random, FGSM, FGSM^k, SPSA^k and an ARIL-A trained against "
-             "that defense (in brackets), mean ± std over deterministic episodes; the drop is from the clean DAgger "
-             "learner. Each cell's seeds, clean return, every attack's figure and the command are in the JSON.", "",
+             f"that defense{_seeds_text(payload)} (in brackets), mean ± std over deterministic episodes; the drop is "
+             "from the clean DAgger learner. Each cell's seeds, clean return, every attack's figure and the command "
+             "are in the JSON.", "",
              "| defense | " + " | ".join(f"{e} (eps {by_env[e]['cells'][shown[0]]['eps']:g})" for e in envs)
              + " | overall |", "|---|" + "---|" * len(envs) + "---|",
              "| DAgger, clean | " + " | ".join(f"{by_env[e]['dagger_clean']:.0f}" for e in envs) + " | 0% |"]

@@ -62,6 +62,7 @@ def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
 
 def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path, make_policy, monkeypatch):
     from aril_ros import registry
+    from aril_ros.adversary import load_adversary
     from aril_ros.experiments import DefenseTableConfig, defense_table
 
     monkeypatch.setattr(registry, "DATA_DIR", tmp_path / "data")  # bundled policies of its own, no adversary to reuse
@@ -85,12 +86,18 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
     text = (tmp_path / "def.md").read_text()
     assert "| DAgger, clean |" in text and "| ARIL |" in text
 
-    # a later run of one defense keeps the others' cells
+    # a later run of one defense keeps the others' cells; with two adversary seeds its ARIL-A is the stronger one
     payload = defense_table(DefenseTableConfig(envs="Swimmer-v5", defenses="aril", calibration=str(tmp_path / "cal.json"),
-                                               episodes=2, horizon=60, adversary_steps=2000, k=3,
+                                               episodes=2, horizon=60, adversary_steps=2000, adversary_seeds=2, k=3,
                                                adversary_dir=str(tmp_path / "adv"), out=str(tmp_path / "def"), **ONE), **QUIET)
     assert set(payload["rows"][0]["cells"]) == {"dagger", "aril"}
     assert payload["rows"][0]["cells"]["dagger"] == row["cells"]["dagger"]
+    aril = payload["rows"][0]["cells"]["aril"]
+    assert aril["aril_a_seeds"][0] == row["cells"]["aril"]["attacks"]["aril_a"]["mean"]  # seed 0's file was reused
+    assert aril["attacks"]["aril_a"]["mean"] == min(aril["aril_a_seeds"])
+    assert load_adversary(tmp_path / "adv" / "Swimmer-v5-sensory-aril-seed1.pt").meta["provenance"]["seed"] == 1
+    assert aril["adversary"]["seed"] == aril["aril_a_seeds"].index(min(aril["aril_a_seeds"]))
+    assert "the strongest of 1 or 2" in (tmp_path / "def.md").read_text()  # dagger's cell kept its one
 
 
 def test_a_victim_too_fragile_for_the_grid_is_calibrated_below_it(tmp_path, make_policy):
