@@ -71,9 +71,10 @@ class AnswerNode(Node):
         self.pub.publish(JointState(header=msg.header, **{self.field: values.tolist()}))
 
 
-def steps_per_s(steps: int, env: dict) -> float:
+def steps_per_s(steps: int, env: dict, mark=lambda: None) -> float:
     """The chain's steps/s over ``steps`` steps (after a warm-up), its simulator in this process and the other
-    three roles started as processes in ``env`` (which must hold the ROS domain: this process's own too)."""
+    three roles started as processes in ``env`` (which must hold the ROS domain: this process's own too).
+    ``mark()`` is called as the measured steps start and once they are done (a profiler's window)."""
     import gymnasium as gym
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -124,6 +125,7 @@ def steps_per_s(steps: int, env: dict) -> float:
                 obs, _ = sim.reset()
             step += 1
             if step == warm_up:
+                mark()
                 started = time.perf_counter()
             if step < warm_up + steps:  # none after the last: the chain is idle when its processes are stopped
                 publish_state()
@@ -133,7 +135,9 @@ def steps_per_s(steps: int, env: dict) -> float:
             executor.spin_once(timeout_sec=0.5)
             if time.monotonic() > deadline:
                 raise RuntimeError("the bare chain's expert did not label the last state within 10 s")
-        return steps / (time.perf_counter() - started)
+        seconds = time.perf_counter() - started
+        mark()
+        return steps / seconds
     finally:
         executor.shutdown()
         node.destroy_node()

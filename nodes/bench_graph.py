@@ -61,11 +61,11 @@ def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
     return int(traj.length.sum()) / (time.perf_counter() - started)
 
 
-def bare_chain_steps_per_s(steps: int) -> float:
+def bare_chain_steps_per_s(steps: int, mark=lambda: None) -> float:
     domain, lock = allocate_domain("auto")
     try:
         with ros_domain(domain):  # the chain's simulator runs in this process
-            return bare_chain.steps_per_s(steps, dict(os.environ))
+            return bare_chain.steps_per_s(steps, dict(os.environ), mark)
     finally:
         lock.close()
 

@@ -4,10 +4,12 @@ bare rclpy chain it is measured against (:mod:`aril_ros_nodes.bare_chain`).
     .venv/bin/python -m aril_ros_nodes.profile_graph env:=HalfCheetah-v5 steps:=2000
 
 On a machine with fewer cores than processes every process's CPU is on the critical path, so the totals bound
-the steps/s: the graph can reach at most (bare total) / (graph total) of the bare chain's rate. Each run is made
-at two lengths, ``steps`` and ``3 * steps``, and the per-step figure is the difference of the CPU they took over
-the difference of their steps, so start-up (imports, discovery) drops out. The CPU of a process is read from
-``/proc/<pid>/stat`` every 0.1 s while the run goes on (Linux). The graph runs record (the default run).
+the steps/s: the graph can reach at most (bare total) / (graph total) of the bare chain's rate. Each figure is the
+CPU a process used over a window of ``steps`` steps of steady stepping, once every process has started and
+matched: the bare chain's measured steps after its warm-up, the graph's second episode (its first is the warm-up).
+Start-up (imports, discovery), which varies from run to run by more than a step costs, stays out of it. The CPU
+of a process is read from ``/proc/<pid>/stat`` (Linux), every 0.1 s while the run goes on, so that a process is
+known before the window opens, and again at each end of the window. The graph runs record (the default run).
 """
 import os
 import sys
@@ -30,7 +32,7 @@ class ProfileConfig:
     """Arguments of ``python -m aril_ros_nodes.profile_graph``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id (the bare chain steps HalfCheetah-v5 whatever it is)")
-    steps: int = arg(2000, "steps of the shorter run of each pair (the longer: three times as many)", low=100)
+    steps: int = arg(2000, "steps of the window each figure is measured over", low=100)
     eps: float = arg(0.05, "attack budget")
 
 
@@ -51,7 +53,6 @@ class CpuSampler:
 
     def __init__(self):
         self.seconds: dict[int, tuple[str, float]] = {}
-        self.others: set[int] = set()  # pids seen not to be the run's: never read again (the sampler's own cost)
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._sample, daemon=True)
 
@@ -65,23 +66,33 @@ class CpuSampler:
 
     def _sample(self) -> None:
         while not self.done.is_set():
-            for entry in os.listdir("/proc"):
-                if entry.isdigit() and int(entry) not in self.others:
-                    self._read(int(entry))
+            self.read_all()
             time.sleep(0.1)
 
+    def read_all(self) -> None:
+        for entry in os.listdir("/proc"):
+            if entry.isdigit():
+                self._read(int(entry))
+
+    def now(self) -> dict[str, float]:
+        """:meth:`by_name` as of this moment (read now, not at the last sample)."""
+        self.read_all()
+        return self.by_name()
+
     def _read(self, pid: int) -> None:
+        # this run's processes are this one and its children; a pid is not remembered as someone else's, since a
+        # busy machine reuses pids within a run
         try:
             stat = Path(f"/proc/{pid}/stat").read_text()
+            fields = stat[stat.rindex(")") + 2:].split()  # from field 3 of stat(5) on: state, ppid, ...
+            if os.getpid() not in (pid, int(fields[1])):
+                return
             cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
         except OSError:  # ended between the listing and the read
             return
-        fields = stat[stat.rindex(")") + 2:].split()  # from field 3 of stat(5) on: state, ppid, ...
         name = process_name(pid, cmdline)
-        if name is not None and os.getpid() in (pid, int(fields[1])):  # this run's: this process and its children
+        if name is not None:
             self.seconds[pid] = (name, (int(fields[11]) + int(fields[12])) / TICKS)  # utime + stime
-        elif "python" not in cmdline:  # a python process may still become a node (rclpy's wheels re-exec it)
-            self.others.add(pid)
 
     def by_name(self) -> dict[str, float]:
         totals: dict[str, float] = {}
@@ -90,24 +101,28 @@ class CpuSampler:
         return totals
 
 
-def cpu_of(run) -> dict[str, float]:
-    with CpuSampler() as sampler:
-        run()
-    return sampler.by_name()
-
-
 def per_step(run, steps: int) -> dict[str, float]:
-    """ms of CPU per step of each process: ``run(n)`` at ``steps`` and ``3 * steps``, the difference."""
-    short, long = cpu_of(lambda: run(steps)), cpu_of(lambda: run(3 * steps))
-    return {name: 1000 * (long[name] - short.get(name, 0.0)) / (2 * steps) for name in long}
+    """ms of CPU per step of each process over the window of ``steps`` steps that ``run(steps, mark)`` opens and
+    closes by calling ``mark()``."""
+    marks: list[dict[str, float]] = []
+    with CpuSampler() as sampler:
+        run(steps, lambda: marks.append(sampler.now()))
+    if len(marks) != 2:
+        raise RuntimeError(f"the run marked its window {len(marks)} times, not twice")
+    opened, closed = marks
+    return {name: 1000 * (closed[name] - opened.get(name, 0.0)) / steps for name in closed}
 
 
 def graph_run(cfg: ProfileConfig, mode: str):
-    def run(steps: int) -> None:
+    """``run(steps, mark)`` of the graph: two episodes of ``steps`` steps, the window the second."""
+    def run(steps: int, mark) -> None:
+        def log(line="", *args, **kwargs) -> None:
+            if line.startswith("episode "):  # the orchestrator's line at the end of each episode
+                mark()
+
         with tempfile.TemporaryDirectory(prefix="aril_profile-") as folder:
-            Orchestrator(GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=1,
-                                     horizon=steps, record=str(Path(folder) / "run.mcap")),
-                         log=lambda *a, **k: None).run()
+            Orchestrator(GraphConfig(mode=mode, env=cfg.env, attack=attack_for_mode(mode), eps=cfg.eps, episodes=2,
+                                     horizon=steps, record=str(Path(folder) / "run.mcap")), log=log).run()
     return run
 
 
@@ -121,7 +136,7 @@ def main(argv):
     columns = {"bare chain": per_step(bare_chain_steps_per_s, cfg.steps),
                **{f"graph {mode}": per_step(graph_run(cfg, mode), cfg.steps) for mode in MODES}}
     names = sorted({name for column in columns.values() for name in column})
-    print(f"{cfg.env}: ms of CPU per step by process ({cfg.steps} and {3 * cfg.steps} steps, the difference)")
+    print(f"{cfg.env}: ms of CPU per step by process, over {cfg.steps} steps of steady stepping")
     print(f"{'process':<58}" + "".join(f"{c:>16}" for c in columns))
     for name in names:
         print(f"{name:<58}" + "".join(f"{col[name]:>16.3f}" if name in col else f"{'':>16}" for col in columns.values()))

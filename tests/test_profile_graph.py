@@ -24,3 +24,22 @@ def test_the_sampler_reads_the_cpu_this_process_uses():
         time.sleep(0.25)
     used = sum(sampler.by_name().values()) - sum(before.values())
     assert 0.4 < used < 1.5
+
+
+def test_a_step_costs_the_cpu_used_between_the_marks_alone():
+    from aril_ros_nodes.profile_graph import per_step
+
+    def busy(seconds):
+        started = time.process_time()
+        while time.process_time() - started < seconds:
+            pass
+
+    def run(steps, mark):
+        busy(0.3)  # start-up: outside the window
+        mark()
+        busy(0.5)
+        mark()
+        busy(0.3)  # shutting down: outside too
+
+    figures = per_step(run, steps=100)
+    assert 4.0 < sum(figures.values()) < 7.0  # 0.5 s over 100 steps: 5 ms each, start-up and shutdown left out
