@@ -464,9 +464,10 @@ def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = S
     observations; ``observation``, the simulators' observations before the move, spares reading them again where
     no ``mj_forward`` is needed."""
 
-    model = sims[0].model  # one model for all, as in step_sims
     rules = sims[0].rules
     if rules is None or rules.reads_kinematics:
+        model = sims[0].model  # one model for all, as in step_sims
+
         def move(i: int) -> None:
             perturb_qpos(sims[i].layout, sims[i].qpos, delta[i])
             mujoco.mj_forward(model, sims[i].data)
@@ -480,7 +481,8 @@ def perturb_sims(sims: list[MujocoSim], delta: np.ndarray, pool: PhysicsPool = S
     if observation is None:
         return observe_sims(sims)
     # these rules observe the moved qpos entries as they are (ForwardRules.observe), so the same additions on the
-    # old observation give the new one bit for bit, without a pass over every simulator (3% of a physical step)
+    # old observation give the new one bit for bit, without a pass over every simulator (54 -> 36 us for 32
+    # HalfCheetahs, with the loop above off the pool: about 1% of a physical step)
     moved = np.array(observation, dtype=np.float64)
     moved[:, layout.position] += delta[:, layout.position]
     return moved

@@ -137,9 +137,10 @@ def train_expert(cfg: ExpertConfig, log=print, wrap_env=None, on_rollout_end=Non
         else:
             model = PPO("MlpPolicy", env, seed=cfg.seed, device="cpu", verbose=0, **hyper)
         export = lambda provenance: export_ppo_actor(model, env, cfg.env, provenance)  # noqa: E731
-    trained_hidden = export({}).meta.hidden
-    if resume and cfg.hidden and trained_hidden != [cfg.hidden] * 2:  # a loaded model keeps its own layers
-        raise ValueError(f"{resume} holds a network with hidden layers {trained_hidden}, not hidden:={cfg.hidden}")
+    if resume and cfg.hidden:  # a loaded model keeps its own layers
+        trained_hidden = export({}).meta.hidden
+        if trained_hidden != [cfg.hidden] * 2:
+            raise ValueError(f"{resume} holds a network with hidden layers {trained_hidden}, not hidden:={cfg.hidden}")
     started = time.time() - state.get("train_seconds", 0.0)
     best = {"mean_return": state.get("best_mean_return", -np.inf)}
     commands = state.get("commands", []) + [command]

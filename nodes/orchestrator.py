@@ -642,11 +642,15 @@ class StepRecorder:
             action = cdr_joint_values(msgs[P.ACTION], "effort")
             expert = cdr_joint_values(msgs[P.EXPERT_ACTION], "effort")
             delta = cdr_joint_values(msgs[P.PERTURBATION], "position")
-            self.current.add(reward, action, expert, delta, done=bool(terminated or truncated))
-            self.steps_written += 1
-            if self.current.done:
-                self.episode_stats.append(self.current)
-                self.episode_done = True
+            self.count_step(reward, action, expert, delta, done=bool(terminated or truncated))
+
+    def count_step(self, reward: float, action, expert_action, delta, done: bool) -> None:
+        """A written step's figures into the episode's; the episode ends with its last step."""
+        self.current.add(reward, action, expert_action, delta, done=done)
+        self.steps_written += 1
+        if self.current.done:
+            self.episode_stats.append(self.current)
+            self.episode_done = True
 
     def waiting_for(self) -> StepTag:
         """The step to be written next: steps are written in order, from 0 in each episode."""

@@ -33,11 +33,7 @@ def reward_only(client, recorder) -> None:
     def on_reward(raw: bytes) -> None:
         reward, terminated, truncated = cdr_joint_values(raw, "position")
         none = np.zeros(1)  # no action, expert action or perturbation is heard
-        recorder.current.add(reward, none, none, none, done=bool(terminated or truncated))
-        recorder.steps_written += 1
-        if recorder.current.done:
-            recorder.episode_stats.append(recorder.current)
-            recorder.episode_done = True
+        recorder.count_step(reward, none, none, none, done=bool(terminated or truncated))
 
     client.node.create_subscription(JointState, P.REWARD, on_reward, STEP_QOS, raw=True)
 
