@@ -34,11 +34,12 @@ from . import plugins, seeds
 from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, input_size, load_adversary, save_adversary
 from .args import arg
 from .envs import layout_of
-from .policy import resolve_policy
+from .policy import load_policy, policy_file, resolve_policy
 from .provenance import stamp
 from .registry import ATTACKED_MODES, DEFAULT_ENV, check_name
 from .rollout import SimBatch
 from .step import disagreement
+from .sweep import digest_of
 
 
 class RunningStd:
@@ -113,11 +114,13 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
             return train_against(cfg, remote, log)
         finally:
             remote.close()
-    return train_against(cfg, resolve_policy(cfg.victim, cfg.env), log)
+    file = policy_file(cfg.victim, cfg.env, cfg.mode)
+    return train_against(cfg, load_policy(file, cfg.env), log, victim_digest=digest_of(file.read_bytes()))
 
 
-def train_against(cfg: AdversaryConfig, victim, log) -> Path:
-    """The training: scale the inputs, then collect, estimate advantages and update until ``cfg.steps``."""
+def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") -> Path:
+    """The training: scale the inputs, then collect, estimate advantages and update until ``cfg.steps``;
+    ``victim_digest``, the victim file's sha256, goes into the provenance (what :func:`trained_for` checks)."""
     torch.set_num_threads(cfg.threads)
     expert = resolve_policy(cfg.expert, cfg.env)
     made_by = stamp("aril train-adversary", cfg)
@@ -136,7 +139,8 @@ def train_against(cfg: AdversaryConfig, victim, log) -> Path:
         log(collector.progress_line(steps, time.time() - started), flush=True)
     sims.close()
     net.meta["provenance"] = {
-        **made_by, "victim": cfg.victim, "victim_provenance": victim.meta.provenance, "expert": cfg.expert,
+        **made_by, "victim": cfg.victim, "victim_provenance": victim.meta.provenance,
+        **({"victim_sha256": victim_digest} if victim_digest else {}), "expert": cfg.expert,
         "steps": steps, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
         "final_episode_loss": collector.recent_loss()}
     out = save_adversary(net, cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt")
@@ -144,16 +148,30 @@ def train_against(cfg: AdversaryConfig, victim, log) -> Path:
     return out
 
 
-def trained_for(adversary: Path, eps: float) -> bool:
-    """Whether ``adversary`` exists and was trained for ``eps``."""
-    return adversary.exists() and load_adversary(adversary).eps == eps
+def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mode: str | None = None) -> bool:
+    """Whether ``adversary`` exists, was trained for ``eps`` and, given a ``victim`` policy (a bundled name or a
+    file), against that very policy. The victim's provenance at training time is kept in the adversary, so a
+    policy file replaced since (a bundled learner retrained) makes its adversary stale rather than silently
+    judging the new learner by an attack on the old one. A live victim (``aril_ros.victims``) cannot be compared."""
+    if not adversary.exists():
+        return False
+    made = load_adversary(adversary)
+    if made.eps != eps:
+        return False
+    if not victim or victim in plugins.names("aril_ros.victims"):
+        return True
+    made_against, file = made.meta["provenance"], policy_file(victim, env, mode)
+    if "victim_sha256" in made_against:
+        return made_against["victim_sha256"] == digest_of(file.read_bytes())
+    # adversaries made before the digest was kept: the victim's provenance (its command and creation time)
+    return made_against.get("victim_provenance") == load_policy(file, env).meta.provenance
 
 
 def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
                     retrain: bool, log, seed: int = 0) -> Path:
     """``adversary``, trained (with training seed ``seed``) against ``victim`` first when it is missing, of another
-    eps, or ``retrain``."""
-    if retrain or not trained_for(adversary, eps):
+    eps, trained against another policy than ``victim`` is now, or ``retrain``."""
+    if retrain or not trained_for(adversary, eps, victim, env, mode):
         train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
                                         seed=seed, out=str(adversary)), log=log)
     return adversary

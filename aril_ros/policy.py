@@ -254,16 +254,21 @@ def load_policy(path: str | Path, env_id: str | None = None) -> MLPPolicy:
     return policy
 
 
-def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
-    """A bundled name (``expert``, ``dagger``, ``aril``, ...; ``mode`` picks the ``dr``/``aril`` one) or a
-    policy file path, checked against ``env_id``."""
+def policy_file(name_or_path: str, env_id: str, mode: str | None = None) -> Path:
+    """The file behind a bundled name (``expert``, ``dagger``, ``aril``, ...; ``mode`` picks the ``dr``/``aril``
+    one) or a policy file path."""
     if name_or_path in BUNDLED_NAMES:
         try:
-            return load_policy(bundled_file(name_or_path, env_id, mode), env_id)
+            return bundled_file(name_or_path, env_id, mode)
         except BundledFileError as err:
             raise PolicyFileError(str(err)) from None
     if not Path(name_or_path).suffix:
         raise PolicyFileError(
             f"{name_or_path!r} is neither a bundled policy name ({', '.join(BUNDLED_NAMES)}) nor a file path"
         )
-    return load_policy(name_or_path, env_id)
+    return Path(name_or_path)
+
+
+def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
+    """The policy of a bundled name or a policy file path (:func:`policy_file`), checked against ``env_id``."""
+    return load_policy(policy_file(name_or_path, env_id, mode), env_id)

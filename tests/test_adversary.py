@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 import torch
 
-from aril_ros.adversary import AdversaryConfig, load_adversary, save_adversary, train_adversary
+from aril_ros.adversary import (AdversaryConfig, load_adversary, ready_adversary, save_adversary, train_adversary,
+                                trained_for)
 from aril_ros.attacks import LearnedAttack, make_attack
 from tests.conftest import AnswersOnly
 from aril_ros.envs import layout_of
@@ -50,6 +51,20 @@ def test_a_short_training_run_increases_the_objective(mode, swimmer_files, tmp_p
                               log=lambda *a, **k: None)
     before, after = objective(untrained, victim, expert, mode), objective(trained, victim, expert, mode)
     assert after > 1.3 * before, (before, after)
+
+
+def test_an_adversary_of_a_replaced_victim_is_stale_and_retrained(swimmer_files, tmp_path, make_policy):
+    """A bundled learner retrained in place must not be judged by the attack trained on the one before it."""
+    victim, expert = swimmer_files
+    adversary = tmp_path / "adv.pt"
+    train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), steps=0,
+                                    out=str(adversary)), log=lambda *a, **k: None)
+    assert trained_for(adversary, 0.2, str(victim), "Swimmer-v5")
+    assert not trained_for(adversary, 0.3, str(victim), "Swimmer-v5")
+    save_policy(make_policy("Swimmer-v5", seed=2), victim)  # the same path, another learner
+    assert trained_for(adversary, 0.2) and not trained_for(adversary, 0.2, str(victim), "Swimmer-v5")
+    ready_adversary(adversary, str(victim), "Swimmer-v5", "sensory", 0.2, str(expert), 0, False, lambda *a, **k: None)
+    assert trained_for(adversary, 0.2, str(victim), "Swimmer-v5")
 
 
 def test_adversary_files_round_trip_and_refuse_mismatches(swimmer_files, tmp_path):

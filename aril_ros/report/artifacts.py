@@ -92,7 +92,7 @@ class Artifacts:
             if policy is None:
                 continue
             bundled = adversary_path(env, mode, defense)
-            if seed == 0 and trained_for(bundled, eps[env, mode]):
+            if seed == 0 and trained_for(bundled, eps[env, mode], str(policy), env, mode):
                 wanted[(defense, env, mode, seed)] = bundled
                 continue
             out = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
