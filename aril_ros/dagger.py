@@ -16,6 +16,7 @@ round::
     <run_dir>/data.npz          the aggregated data set (obs, expert_action, episode, round, source)
     <run_dir>/pi-<r>.pt         pi_r, the learner fitted after round r - 1 (a policy file)
     <run_dir>/adversary-<r>.pt  ARIL only: f_r, the adversary trained against pi_r
+    <run_dir>/adversary-<r>-seed<k>.pt  ARIL with adversary_seeds:=N > 1: the candidates f_r was chosen from
     <run_dir>/round-<r>.mcap    source:=graph only: the round's run log
 
 :func:`train_learner` reads top to bottom: check the settings, open (or resume) the run directory,
@@ -26,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +36,8 @@ import numpy as np
 import torch
 
 from . import plugins, seeds
-from .adversary import AdversaryConfig, train_adversary
+from .adversary import AdversaryConfig, train_adversary, trained_for
+from .adversary_net import load_adversary
 from .args import arg
 from .attacks import make_attack
 from .dataset import DaggerDataset
@@ -72,6 +75,9 @@ class LearnerConfig:
     adversary_steps: int = arg(300_000, "aril: PPO steps of each round's adversary")
     warm_start: bool = arg(False, "aril: each round's adversary starts from the previous round's (f_{t-1}) instead of "
                                   "fresh weights, so it keeps up with a learner that changes a little per round")
+    adversary_seeds: int = arg(1, "aril: f_t is the strongest of this many adversaries trained against pi_t with "
+                                  "different seeds (the largest objective at the end of its training): a closer "
+                                  "argmax over adversaries, since one PPO run may miss the exploit another finds")
     eval_episodes: int = arg(5, f"dr and aril: episodes of each learner's clean evaluation (env seeds {seeds.LEARNER_EVAL}...)")
     seed: int = arg(0, "seed of the fits, noise and adversaries; the rounds collect in the seed's training block "
                        "(aril_ros.seeds.collection(seed, round))")
@@ -167,6 +173,8 @@ def checked(cfg: LearnerConfig) -> LearnerConfig:
             raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
     if cfg.rounds < 1:
         raise ValueError("rounds:= must be >= 1")
+    if cfg.adversary_seeds < 1:
+        raise ValueError(f"adversary_seeds:= must be >= 1, got {cfg.adversary_seeds}")
     if cfg.source not in SOURCES:
         raise ValueError(f"source:= must be one of {', '.join(SOURCES)}, got {cfg.source!r}")
     if cfg.source == "graph" and cfg.algorithm == "dart":
@@ -251,15 +259,28 @@ class LearnerRun:
 
 
 def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> str:
-    """ARIL: f_r, the adversary trained against pi_r (warm-started from f_{r-1} if asked); else none."""
+    """ARIL: f_r, the adversary trained against pi_r (warm-started from f_{r-1} if asked); with
+    ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates) is largest,
+    copied from ``adversary-<r>-seed<k>.pt``; else none."""
     if r == 0 or run.attack != "aril_a":
         return ""
-    out = str(run.dir / f"adversary-{r}.pt")
-    train_adversary(AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
-                                    expert=cfg.expert, steps=cfg.adversary_steps,
-                                    seed=seeds.round_weights(cfg.seed, r), init=str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else "",
-                                    out=out), log=log)
-    return out
+    out = run.dir / f"adversary-{r}.pt"
+    candidates = [out] if cfg.adversary_seeds == 1 else [run.dir / f"adversary-{r}-seed{k}.pt"
+                                                          for k in range(cfg.adversary_seeds)]
+    for k, file in enumerate(candidates):
+        if trained_for(file, cfg.eps, str(run.policy_file(r)), cfg.env):
+            continue  # finished before an interruption: the same seed against the same pi_r gives the same file
+        init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
+        train_adversary(AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
+                                        expert=cfg.expert, steps=cfg.adversary_steps,
+                                        seed=seeds.round_adversary(cfg.seed, r, k), init=init, out=str(file)), log=log)
+    if len(candidates) > 1:
+        objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
+        best = int(np.argmax(objectives))
+        shutil.copyfile(candidates[best], out)
+        log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
+            + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
+    return str(out)
 
 
 def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) -> tuple[dict, DaggerDataset]:

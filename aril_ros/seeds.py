@@ -37,6 +37,10 @@ SEED_BLOCK = 1_000_000
 """Env seeds per training seed: training seed ``k`` collects in ``[TRAINING + k*SEED_BLOCK, + SEED_BLOCK)``."""
 ROUND_BLOCK = 10_000
 """Env seeds per round of ``train-learner`` inside a training seed's block (round ``r``: slice ``r``)."""
+ROUND_CANDIDATE_STRIDE = 1_000_000
+"""Training seeds apart of a round's candidate adversaries (``train-learner adversary_seeds:=N``): candidate ``k``
+of round ``r`` trains with ``round_weights(seed, r) + k * ROUND_CANDIDATE_STRIDE``, far above the round seeds of
+every training seed below 1000, so no two share their env seeds."""
 ADVERSARY_SLICE = 500_000
 """Offset inside a training seed's block where ``train-adversary`` draws its episodes (after the rounds)."""
 
@@ -63,3 +67,9 @@ def round_weights(seed: int, round_: int) -> int:
     (weights and minibatches, not env seeds: the round's adversary, trained with ``seed:=`` this value,
     resets its envs in that training seed's block, which no evaluation shares)."""
     return seed * 1000 + round_
+
+
+def round_adversary(seed: int, round_: int, candidate: int = 0) -> int:
+    """The training seed of candidate ``candidate`` of round ``round_``'s adversary in ``train-learner`` with
+    ``seed:=seed``; candidate 0 is :func:`round_weights` (the only one when a round trains one adversary)."""
+    return round_weights(seed, round_) + candidate * ROUND_CANDIDATE_STRIDE

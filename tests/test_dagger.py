@@ -140,3 +140,26 @@ def test_aril_trains_an_adversary_against_each_learner_and_collects_under_it(tmp
     policy = load_policy(tmp_path / "out.pt")
     assert policy.meta.provenance["algorithm"] == "aril"
     assert f"{mode}, aril_a eps 0.05" in policy.meta.provenance["selection"]
+
+
+def test_aril_keeps_the_strongest_of_its_round_candidates_and_reuses_finished_ones(tmp_path):
+    from aril_ros.adversary import load_adversary
+
+    cfg = small(tmp_path, algorithm="aril", mode="physical", eps=0.05, rounds=1, adversary_steps=16_384,
+                adversary_seeds=3)
+    train_learner(cfg, log=quiet)
+    run = tmp_path / "run"
+    candidates = [load_adversary(run / f"adversary-1-seed{k}.pt").meta["provenance"] for k in range(3)]
+    assert len({c["seed"] for c in candidates}) == 3  # three trainings, each its own seed
+    objectives = [c["final_episode_loss"] for c in candidates]  # 16 envs x 1024 steps: each finished episodes
+    assert len(set(objectives)) == 3
+    chosen = load_adversary(run / "adversary-1.pt").meta["provenance"]
+    assert chosen["seed"] == candidates[int(np.argmax(objectives))]["seed"]
+    # killed after the candidates, before round 1 was recorded: the round runs again and trains none of them anew
+    state = json.loads((run / "state.json").read_text())
+    (run / "state.json").write_text(json.dumps({**state, "rounds": state["rounds"][:1]}))
+    stamps = [(run / f"adversary-1-seed{k}.pt").stat().st_mtime_ns for k in range(3)]
+    train_learner(cfg, log=quiet)
+    assert [(run / f"adversary-1-seed{k}.pt").stat().st_mtime_ns for k in range(3)] == stamps
+    with pytest.raises(ValueError, match="adversary_seeds:= must be >= 1"):
+        train_learner(small(tmp_path, algorithm="aril", mode="physical", eps=0.05, adversary_seeds=0), log=quiet)
