@@ -260,8 +260,8 @@ class LearnerRun:
 
 def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> str:
     """ARIL: f_r, the adversary trained against pi_r (warm-started from f_{r-1} if asked); with
-    ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates) is largest,
-    copied from ``adversary-<r>-seed<k>.pt``; else none."""
+    ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates; 0 when no
+    episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; else none."""
     if r == 0 or run.attack != "aril_a":
         return ""
     out = run.dir / f"adversary-{r}.pt"
