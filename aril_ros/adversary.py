@@ -150,7 +150,7 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
 
 def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mode: str | None = None) -> bool:
     """Whether ``adversary`` exists, was trained for ``eps`` and, given a ``victim`` policy (a bundled name or a
-    file), against that very policy. The victim's provenance at training time is kept in the adversary, so a
+    file), against that very policy. The victim file's sha256 at training time is kept in the adversary, so a
     policy file replaced since (a bundled learner retrained) makes its adversary stale rather than silently
     judging the new learner by an attack on the old one. A live victim (``aril_ros.victims``) cannot be compared."""
     if not adversary.exists():
@@ -168,12 +168,13 @@ def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mo
 
 
 def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
-                    retrain: bool, log, seed: int = 0) -> Path:
-    """``adversary``, trained (with training seed ``seed``) against ``victim`` first when it is missing, of another
-    eps, trained against another policy than ``victim`` is now, or ``retrain``."""
+                    retrain: bool, log, seed: int = 0, init: str = "") -> Path:
+    """``adversary``, trained (with training seed ``seed``, from the adversary file ``init`` if given) against
+    ``victim`` first when it is missing, of another eps, trained against another policy than ``victim`` is now,
+    or ``retrain``."""
     if retrain or not trained_for(adversary, eps, victim, env, mode):
         train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
-                                        seed=seed, out=str(adversary)), log=log)
+                                        seed=seed, init=init, out=str(adversary)), log=log)
     return adversary
 
 

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from . import plugins, seeds
-from .adversary import AdversaryConfig, train_adversary, trained_for
+from .adversary import ready_adversary
 from .adversary_net import load_adversary
 from .args import arg
 from .attacks import make_attack
@@ -267,13 +267,11 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
     out = run.dir / f"adversary-{r}.pt"
     candidates = [out] if cfg.adversary_seeds == 1 else [run.dir / f"adversary-{r}-seed{k}.pt"
                                                           for k in range(cfg.adversary_seeds)]
+    init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
     for k, file in enumerate(candidates):
-        if trained_for(file, cfg.eps, str(run.policy_file(r)), cfg.env):
-            continue  # finished before an interruption: the same seed against the same pi_r gives the same file
-        init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
-        train_adversary(AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
-                                        expert=cfg.expert, steps=cfg.adversary_steps,
-                                        seed=seeds.round_adversary(cfg.seed, r, k), init=init, out=str(file)), log=log)
+        # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
+        ready_adversary(file, str(run.policy_file(r)), cfg.env, run.mode, cfg.eps, cfg.expert, cfg.adversary_steps,
+                        False, log, seed=seeds.round_adversary(cfg.seed, r, k), init=init)
     if len(candidates) > 1:
         objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
         best = int(np.argmax(objectives))
