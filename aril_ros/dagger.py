@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from . import plugins, seeds
-from .adversary import ready_adversary
+from .adversary import AdversaryConfig, train_adversary, trained_for
 from .adversary_net import load_adversary
 from .args import arg
 from .attacks import make_attack
@@ -46,9 +46,10 @@ from .learners import fit_policy
 from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
-from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps
+from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps, for_task
 from .rollout import RolloutEngine
 from .step import episode_stats
+from .sweep import Produced, run_tasks, shipped
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 SOURCES = ("inprocess", "graph")
@@ -78,6 +79,10 @@ class LearnerConfig:
     adversary_seeds: int = arg(1, "aril: f_t is the strongest of this many adversaries trained against pi_t with "
                                   "different seeds (the largest objective at the end of its training): a closer "
                                   "argmax over adversaries, since one PPO run may miss the exploit another finds")
+    workers: int = arg(1, "aril with adversary_seeds:=N: the candidates trained side by side on this many CPUs of a "
+                          "local Ray (1: one after the other in this process); the files are the same either way",
+                       low=1)
+    address: str = arg("", "aril: train the candidates on this Ray cluster instead (<head ip>:6379, or auto)")
     eval_episodes: int = arg(5, f"dr and aril: episodes of each learner's clean evaluation (env seeds {seeds.LEARNER_EVAL}...)")
     seed: int = arg(0, "seed of the fits, noise and adversaries; the rounds collect in the seed's training block "
                        "(aril_ros.seeds.collection(seed, round))")
@@ -197,7 +202,8 @@ class LearnerRun:
         self.expert = resolve_policy(cfg.expert, cfg.env)
         self.layout = layout_of(cfg.env)
         config = {k: v for k, v in dataclasses.asdict(cfg).items()
-                  if k not in ("run_dir", "out", "threads", "rounds", "eval_episodes", "source")}
+                  if k not in ("run_dir", "out", "threads", "workers", "address", "rounds", "eval_episodes",
+                              "source")}
         state = {"config": config, "rounds": []}
         if self.state_path.exists():
             state = json.loads(self.state_path.read_text())
@@ -268,10 +274,15 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
     candidates = [out] if cfg.adversary_seeds == 1 else [run.dir / f"adversary-{r}-seed{k}.pt"
                                                           for k in range(cfg.adversary_seeds)]
     init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
-    for k, file in enumerate(candidates):
-        # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
-        ready_adversary(file, str(run.policy_file(r)), cfg.env, run.mode, cfg.eps, cfg.expert, cfg.adversary_steps,
-                        False, log, seed=seeds.round_adversary(cfg.seed, r, k), init=init)
+    victim = str(run.policy_file(r))
+    # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
+    todo = [k for k, file in enumerate(candidates) if not trained_for(file, cfg.eps, victim, cfg.env, run.mode)]
+    settings = dict(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=shipped(victim),
+                    expert=shipped(for_task(cfg.expert, cfg.env)), steps=cfg.adversary_steps, init=shipped(init))
+    calls = [({**settings, "seed": seeds.round_adversary(cfg.seed, r, k), "out": Produced(candidates[k])},)
+             for k in todo]
+    for _ in run_tasks(train_candidate, calls, cfg.workers, cfg.address, label=f"round {r} adversaries", log=log):
+        pass
     if len(candidates) > 1:
         objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
         best = int(np.argmax(objectives))
@@ -279,6 +290,12 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
         log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
             + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
     return str(out)
+
+
+def train_candidate(settings: dict) -> Path:
+    """One candidate adversary (a sweep task): ``aril train-adversary`` with ``settings``, AdversaryConfig's
+    fields (a file given as a path)."""
+    return train_adversary(AdversaryConfig(**{k: str(v) if isinstance(v, Path) else v for k, v in settings.items()}))
 
 
 def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) -> tuple[dict, DaggerDataset]:

@@ -1,7 +1,9 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from aril_ros.dagger import LearnerConfig, train_learner
 from aril_ros.policy import load_policy
@@ -163,3 +165,24 @@ def test_aril_keeps_the_strongest_of_its_round_candidates_and_reuses_finished_on
     assert [(run / f"adversary-1-seed{k}.pt").stat().st_mtime_ns for k in range(3)] == stamps
     with pytest.raises(ValueError, match="adversary_seeds:= must be >= 1"):
         train_learner(small(tmp_path, algorithm="aril", mode="physical", eps=0.05, adversary_seeds=0), log=quiet)
+
+
+
+def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_path, monkeypatch):
+    """workers:=2 trains a round's candidates as Ray tasks side by side; each candidate is the very adversary the
+    in-process run trains (same weights), and its provenance names the victim by the run's relative path."""
+    from aril_ros.adversary import load_adversary
+
+    monkeypatch.chdir(tmp_path)  # relative run directories, as the scripts use
+    files = {}
+    for workers in (1, 2):
+        cfg = LearnerConfig(env="Swimmer-v5", algorithm="aril", mode="physical", eps=0.05, rounds=1, episodes=1,
+                            epochs=2, eval_episodes=1, adversary_steps=8192, adversary_seeds=2, workers=workers,
+                            run_dir=f"run{workers}", out=f"out{workers}.pt")
+        train_learner(cfg, log=quiet)
+        files[workers] = [load_adversary(Path(f"run{workers}/adversary-1-seed{k}.pt")) for k in range(2)]
+    for alone, side_by_side in zip(files[1], files[2]):
+        for name, weights in alone.state_dict().items():
+            assert torch.equal(weights, side_by_side.state_dict()[name]), name
+        assert side_by_side.meta["provenance"]["victim"] == "run2/pi-1.pt"
+    assert files[2][0].meta["provenance"]["seed"] != files[2][1].meta["provenance"]["seed"]
