@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +36,10 @@ from .args import arg
 from .envs import layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .provenance import stamp
-from .registry import ATTACKED_MODES, DEFAULT_ENV, check_name
+from .registry import ATTACKED_MODES, DEFAULT_ENV, check_name, for_task
 from .rollout import SimBatch
 from .step import disagreement
-from .sweep import digest_of
+from .sweep import Produced, digest_of, run_tasks, shipped
 
 
 class RunningStd:
@@ -172,10 +172,36 @@ def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: floa
     """``adversary``, trained (with training seed ``seed``, from the adversary file ``init`` if given) against
     ``victim`` first when it is missing, of another eps, trained against another policy than ``victim`` is now,
     or ``retrain``."""
-    if retrain or not trained_for(adversary, eps, victim, env, mode):
-        train_adversary(AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps,
-                                        seed=seed, init=init, out=str(adversary)), log=log)
-    return adversary
+    wanted = AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps, seed=seed,
+                             init=init, out=str(adversary))
+    return ready_adversaries([wanted], retrain, log)[0]
+
+
+def ready_adversaries(wanted: list[AdversaryConfig], retrain: bool, log, workers: int = 1, address: str = ""
+                      ) -> list[Path]:
+    """Each ``wanted`` adversary's file (its ``out``), trained first as :func:`ready_adversary` says; those to train
+    run as sweep tasks, ``workers`` CPUs of a local Ray or the cluster at ``address`` (one worker: one after the
+    other in this process, logging to ``log``). Their victim, expert and init files travel with them, and a task
+    records a file by the path it saw: a relative path or a bundled name reads the same on every node."""
+    todo = [cfg for cfg in wanted if retrain or not trained_for(Path(cfg.out), cfg.eps, cfg.victim, cfg.env, cfg.mode)]
+    here = workers == 1 and not address
+    calls = [(_with_files_marked(cfg), log if here else None) for cfg in todo]
+    for _ in run_tasks(training_task, calls, workers, address, label="adversary trainings", log=log):
+        pass
+    return [Path(cfg.out) for cfg in wanted]
+
+
+def _with_files_marked(cfg: AdversaryConfig) -> dict:
+    """``cfg``'s fields for a task: the files it reads marked to travel with it, the one it writes to come back."""
+    return {**asdict(cfg), "victim": shipped(for_task(cfg.victim, cfg.env, cfg.mode)),
+            "expert": shipped(for_task(cfg.expert, cfg.env)), "init": shipped(cfg.init), "out": Produced(Path(cfg.out))}
+
+
+def training_task(settings: dict, log=None) -> Path:
+    """One adversary's training (a sweep task): AdversaryConfig's fields, a file given as a path; ``log`` only
+    in the calling process (a Ray worker's output is not the driver's)."""
+    cfg = AdversaryConfig(**{k: str(v) if isinstance(v, Path) else v for k, v in settings.items()})
+    return train_adversary(cfg, log=log or print)
 
 
 def check_config(cfg: AdversaryConfig) -> None:

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from . import plugins, seeds
-from .adversary import AdversaryConfig, train_adversary, trained_for
+from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
 from .args import arg
 from .attacks import make_attack
@@ -46,10 +46,9 @@ from .learners import fit_policy
 from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
-from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps, for_task
+from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps
 from .rollout import RolloutEngine
 from .step import episode_stats
-from .sweep import Produced, run_tasks, shipped
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 SOURCES = ("inprocess", "graph")
@@ -274,15 +273,11 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
     candidates = [out] if cfg.adversary_seeds == 1 else [run.dir / f"adversary-{r}-seed{k}.pt"
                                                           for k in range(cfg.adversary_seeds)]
     init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
-    victim = str(run.policy_file(r))
+    wanted = [AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
+                              expert=cfg.expert, steps=cfg.adversary_steps, seed=seeds.round_adversary(cfg.seed, r, k),
+                              init=init, out=str(file)) for k, file in enumerate(candidates)]
     # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
-    todo = [k for k, file in enumerate(candidates) if not trained_for(file, cfg.eps, victim, cfg.env, run.mode)]
-    settings = dict(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=shipped(victim),
-                    expert=shipped(for_task(cfg.expert, cfg.env)), steps=cfg.adversary_steps, init=shipped(init))
-    calls = [({**settings, "seed": seeds.round_adversary(cfg.seed, r, k), "out": Produced(candidates[k])},)
-             for k in todo]
-    for _ in run_tasks(train_candidate, calls, cfg.workers, cfg.address, label=f"round {r} adversaries", log=log):
-        pass
+    ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
     if len(candidates) > 1:
         objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
         best = int(np.argmax(objectives))
@@ -290,12 +285,6 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
         log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
             + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
     return str(out)
-
-
-def train_candidate(settings: dict) -> Path:
-    """One candidate adversary (a sweep task): ``aril train-adversary`` with ``settings``, AdversaryConfig's
-    fields (a file given as a path)."""
-    return train_adversary(AdversaryConfig(**{k: str(v) if isinstance(v, Path) else v for k, v in settings.items()}))
 
 
 def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) -> tuple[dict, DaggerDataset]:

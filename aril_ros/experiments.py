@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from . import seeds
-from .adversary import load_adversary, ready_adversary
+from .adversary import AdversaryConfig, load_adversary, ready_adversaries
 from .envs import HORIZON
 from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate_all
@@ -200,14 +200,15 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     made = stamp("aril attack-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     rows_of = ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]
-    adversaries, jobs = {}, []
+    adversaries, jobs, wanted = {}, [], []
     for env in comma_list(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
         adversary = (adversary_path(env, cfg.mode) if cfg.policy == DEFAULT_POLICY
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        adversaries[env] = ready_adversary(adversary, cfg.policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps,
-                                           cfg.retrain, log)
+        adversaries[env] = adversary
+        wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
+                                      steps=cfg.adversary_steps, out=str(adversary)))
         for row in rows_of:
             attack = "aril_a" if row == SEARCH_ROW else row
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
@@ -216,6 +217,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                                           attack_file=str(adversary) if attack == "aril_a" else "",
                                           search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
+    ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)  # every env's at once, as tasks
     results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
     fresh = []
     for env, adversary in adversaries.items():
@@ -306,8 +308,8 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
     unknown = [d for d in defenses if d not in DEFENSES]
     if unknown:
         raise ValueError(f"unknown defenses {unknown}; choose from {', '.join(DEFENSES)}")
-    # first the adversaries (each trained against its defense if missing), then every evaluation at once
-    settings, jobs = {}, {}
+    # first the adversaries (each trained against its defense if missing, all at once), then every evaluation
+    settings, jobs, wanted = {}, {}, []
     for env in comma_list(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         common = dict(env=env, expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, k=cfg.k)
@@ -320,9 +322,10 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
                      else adversary_path(env, cfg.mode, defense))
             adversaries = [first if seed == 0 else first.with_name(f"{first.stem}-seed{seed}.pt")
                            for seed in range(cfg.adversary_seeds)]
-            for seed, adversary in enumerate(adversaries):
-                ready_adversary(adversary, policy, env, cfg.mode, eps, cfg.expert, cfg.adversary_steps, cfg.retrain,
-                                log, seed=seed)
+            # the victim by its bundled name: a task on another node finds its own copy, and the file records the name
+            wanted += [AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=defense, expert=cfg.expert,
+                                       steps=cfg.adversary_steps, seed=seed, out=str(adversary))
+                       for seed, adversary in enumerate(adversaries)]
             settings[env, defense] = (eps, policy, adversaries)
             jobs[env, policy, "none"] = EvalConfig(policy=policy, mode="clean", **common)
             for threat in THREATS:
@@ -332,6 +335,7 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
             for adversary in adversaries:
                 jobs[env, policy, str(adversary)] = EvalConfig(policy=policy, mode=cfg.mode, attack="aril_a",
                                                                eps=eps, attack_file=str(adversary), **common)
+    ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)
     cell = dict(zip(jobs, map(_cell, evaluate_all([asdict(j) for j in jobs.values()], cfg.workers, cfg.address,
                                                   log))))
     fresh = []

@@ -47,11 +47,14 @@ def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, 
                "spsa": [66.0, 62.0], "aril_a": [75.0, 65.0]}
     monkeypatch.setattr(experiments, "evaluate_all", lambda jobs, *a, **k: [
         {"returns": returns[job["attack"] or "none"], "eps": job["eps"], "mean_expert_loss": 0.0} for job in jobs])
-    monkeypatch.setattr(experiments, "ready_adversary", lambda *a, **k: None)
+    trained = []
+    monkeypatch.setattr(experiments, "ready_adversaries", lambda wanted, *a, **k: trained.extend(wanted))
     monkeypatch.setattr(experiments, "load_adversary", lambda path: type("A", (), {"meta": {"provenance": {}}}))
     payload = experiments.defense_table(experiments.DefenseTableConfig(envs="Swimmer-v5", defenses="aril",
                                                                        out=str(tmp_path / "def")), log=quiet)
     ours = payload["rows"][0]["cells"]["aril"]
+    # the adversary is trained against the defense by its bundled name, so a task on any node finds it
+    assert [(w.victim, w.seed, Path(w.out).name) for w in trained] == [("aril", 0, "Swimmer-v5-sensory-aril.pt")]
     report = table_cells({("Swimmer-v5", "sensory", "aril", a, 0.0 if a == "none" else 1.0): [r]
                           for a, r in returns.items()}, "Swimmer-v5", "sensory")[("aril", "worst")]
     assert ours["worst"] == report["attack"] == "fgsm_k"
