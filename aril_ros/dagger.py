@@ -12,7 +12,8 @@ because the analysis of DAgger and the paper's theorem bound the *best* pi_i, no
 A run directory holds everything needed to resume after an interruption from the last finished
 round::
 
-    <run_dir>/state.json        config and one record per finished round (returns, losses, seconds)
+    <run_dir>/state.json        config and one record per finished round (returns, losses, seconds; ARIL:
+                                its adversaries' seconds on the clock and their trainings' own, summed)
     <run_dir>/data.npz          the aggregated data set (obs, expert_action, episode, round, source)
     <run_dir>/pi-<r>.pt         pi_r, the learner fitted after round r - 1 (a policy file)
     <run_dir>/adversary-<r>.pt  ARIL only: f_r, the adversary trained against pi_r
@@ -155,10 +156,15 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     for r in range(len(run.rounds), cfg.rounds + 1):
         started = time.time()
         adversary_file = train_round_adversary(cfg, run, r, log)
+        adversary_seconds = time.time() - started
         record, part = collect(cfg, run, r, adversary_file)
         if r < cfg.rounds:
             record.update(run.fit_next(r, part))
         record["seconds"] = round(time.time() - started, 1)
+        if adversary_file:
+            record.update(adversary_seconds=round(adversary_seconds, 1),
+                          adversary_cpu_seconds=sum(load_adversary(file).meta["provenance"]["train_seconds"]
+                                                    for file in round_candidates(cfg, run, r)))
         run.finish_round(record)
         log(round_line(cfg, run, record), flush=True)
     return select_best(cfg, run, log)
@@ -269,9 +275,7 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
     episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; else none."""
     if r == 0 or run.attack != "aril_a":
         return ""
-    out = run.dir / f"adversary-{r}.pt"
-    candidates = [out] if cfg.adversary_seeds == 1 else [run.dir / f"adversary-{r}-seed{k}.pt"
-                                                          for k in range(cfg.adversary_seeds)]
+    out, candidates = run.dir / f"adversary-{r}.pt", round_candidates(cfg, run, r)
     init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
     wanted = [AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
                               expert=cfg.expert, steps=cfg.adversary_steps, seed=seeds.round_adversary(cfg.seed, r, k),
@@ -285,6 +289,13 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
         log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
             + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
     return str(out)
+
+
+def round_candidates(cfg: LearnerConfig, run: LearnerRun, r: int) -> list[Path]:
+    """The files of round ``r``'s trained adversaries: f_r itself, or the candidates it is chosen from."""
+    if cfg.adversary_seeds == 1:
+        return [run.dir / f"adversary-{r}.pt"]
+    return [run.dir / f"adversary-{r}-seed{k}.pt" for k in range(cfg.adversary_seeds)]
 
 
 def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) -> tuple[dict, DaggerDataset]:
@@ -354,9 +365,14 @@ def save_selected(cfg: LearnerConfig, run: LearnerRun, r: int, selection: str, *
     """pi_r written to ``cfg.out`` (default ``runs/<run name>.pt``), its provenance saying how it was chosen
     (``selection``, and any further ``provenance`` fields) beside the run's round records."""
     policy = load_policy(run.policy_file(r), cfg.env)
+    seconds = time.time() - run.started
+    # CPU time: the round adversaries' trainings count at their own times (side by side they overlap on the clock)
+    cpu_seconds = seconds + sum(rec.get("adversary_cpu_seconds", 0) - rec.get("adversary_seconds", 0)
+                                for rec in run.rounds)
     policy.meta.provenance.update({
-        "selected": f"pi_{r}", "rounds": cfg.rounds, "train_seconds": round(time.time() - run.started, 1),
-        "selection": selection, "rounds_log": run.rounds, "created": now(), **provenance,
+        "selected": f"pi_{r}", "rounds": cfg.rounds, "train_seconds": round(seconds, 1),
+        "cpu_seconds": round(cpu_seconds, 1), "selection": selection, "rounds_log": run.rounds, "created": now(),
+        **provenance,
     })
     return save_policy(policy, cfg.out or f"runs/{run.name}.pt")
 

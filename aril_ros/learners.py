@@ -8,6 +8,7 @@ clean expert demonstrations, one fit.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,6 +64,7 @@ class BCConfig:
 
 
 def train_bc(cfg: BCConfig, log=print) -> Path:
+    started = time.time()
     torch.set_num_threads(1)
     expert = resolve_policy(cfg.expert, cfg.env)
     engine = RolloutEngine(cfg.env, expert, expert, n_envs=min(cfg.episodes, 32))
@@ -73,6 +75,7 @@ def train_bc(cfg: BCConfig, log=print) -> Path:
     policy = fit_policy(demos, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch, cfg.seed, provenance)
     returns = RolloutEngine(cfg.env, policy, expert, n_envs=5).rollout(5, seed=seeds.SELECTION).returns
     policy.meta.provenance["eval"] = {"episodes": 5, "seed": seeds.SELECTION, "mean_return": float(returns.mean())}
+    policy.meta.provenance["train_seconds"] = round(time.time() - started, 1)
     out = save_policy(policy, cfg.out or user_path("bc", cfg.env))
     note = shadowed_by_bundled("bc", cfg.env, out)
     if note:

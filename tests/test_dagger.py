@@ -186,3 +186,9 @@ def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_pa
             assert torch.equal(weights, side_by_side.state_dict()[name]), name
         assert side_by_side.meta["provenance"]["victim"] == "run2/pi-1.pt"
     assert files[2][0].meta["provenance"]["seed"] != files[2][1].meta["provenance"]["seed"]
+    # side by side the candidates overlap on the clock; the learner's CPU time counts each training's own
+    made = load_policy(Path("out2.pt")).meta.provenance
+    trainings = sum(f.meta["provenance"]["train_seconds"] for f in files[2])
+    assert made["rounds_log"][1]["adversary_cpu_seconds"] == pytest.approx(trainings)
+    assert made["cpu_seconds"] == pytest.approx(made["train_seconds"] + trainings
+                                                - made["rounds_log"][1]["adversary_seconds"], abs=0.2)

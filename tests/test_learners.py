@@ -39,5 +39,5 @@ def test_train_bc_writes_a_policy_with_provenance(tmp_path, make_policy):
                             out=str(tmp_path / "bc.pt")), log=lambda *a, **k: None)
     policy = load_policy(out, "Swimmer-v5")
     prov = policy.meta.provenance
-    assert prov["algorithm"] == "behaviour cloning" and prov["samples"] == 2000
+    assert prov["algorithm"] == "behaviour cloning" and prov["samples"] == 2000 and prov["train_seconds"] > 0
     assert prov["command"].startswith("aril train-bc env:=Swimmer-v5")

@@ -94,6 +94,12 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
                         if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
     assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
     assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
+    # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
+    stages = payload["compute"]["stages"]
+    assert stages["evaluations"] == {**stages["evaluations"], "tasks": 80, "untimed": 0}
+    assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5
+    hours = payload["compute"]["hours_on_cores"]
+    assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
     logged.clear()
     build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
     assert any("80 evaluations: 80 cached, 0 to run" in line for line in logged)

@@ -85,12 +85,12 @@ def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_no
              "eps": 0.3, "attack_file": str(adversary) if attack == "aril_a" else "", "rescale": attack == "aril_a",
              "episodes": 2, "seed": 3000 + i, "horizon": 40}
             for i, attack in enumerate(["none", "random", "fgsm", "aril_a", "random", "none"])]
-    on_cluster, counts = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
-    in_process, _ = run_jobs(jobs, tmp_path / "serial", 1, "", False, quiet)
+    on_cluster, counts, _ = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
+    in_process, _, _ = run_jobs(jobs, tmp_path / "serial", 1, "", False, quiet)
     assert counts == {"run": 6, "cached": 0}
     assert on_cluster == in_process
     # the cache is the driver's: the same sweep again runs nothing
-    again, counts = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
+    again, counts, _ = run_jobs(jobs, tmp_path / "cluster", 2, two_nodes.address, False, quiet)
     assert again == on_cluster and counts == {"run": 0, "cached": 6}
 
 
@@ -191,6 +191,7 @@ def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
         subprocess.run(["pkill", "-KILL", "-s", str(driver.pid)], check=False)
     finished = len(list(cache.glob("*.json")))
     assert 1 <= finished < len(jobs), "the sweep was to be stopped part way"
-    returns, counts = run_jobs(jobs, cache, 1, "", False, quiet)
+    returns, counts, seconds = run_jobs(jobs, cache, 1, "", False, quiet)
     assert counts == {"run": len(jobs) - finished, "cached": finished}
     assert all(len(r) == 4 for r in returns)
+    assert len(seconds) == len(jobs) and all(s > 0 for s in seconds)  # the cached ones kept the time they took

@@ -52,7 +52,7 @@ def sweep_jobs(cfg: SweepBenchConfig) -> list[dict]:
 def timed(jobs: list[dict], workers: int, address: str) -> tuple[float, list]:
     with tempfile.TemporaryDirectory() as cache:
         started = time.perf_counter()
-        returns, _ = run_jobs(jobs, Path(cache), workers, address, False, lambda *a, **k: None)
+        returns, _, _ = run_jobs(jobs, Path(cache), workers, address, False, lambda *a, **k: None)
         return time.perf_counter() - started, returns
 
 

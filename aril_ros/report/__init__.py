@@ -22,7 +22,9 @@ What it runs, in order (:func:`build_report`), and the room of this package that
 4. **Report**: table cells (``stats``, the one producer of cells, shared with ``aril attack-table`` and
    ``defense-table``), tables in the paper's layout beside the paper's figures (``tables``, ``paper``),
    sweeps and ARIL's rounds as PNG (``plots``), optional GIFs of an attack (``render:=true``), the
-   text and the comparison with the paper (``text``).
+   text and the comparison with the paper (``text``), and the compute the protocol took (``compute``: CPU-hours
+   per stage from the times each evaluation and each file's training recorded, and the hours it would take on N
+   cores).
 
 Files written (all committed: the report is built from them)::
 
@@ -56,6 +58,7 @@ from ..registry import (
 from ..seeds import DEFENSE_TABLE
 from ..sweep import session
 from .artifacts import Artifacts, aril_rounds
+from .compute import compute_summary
 from .jobs import by_cell, digest, evaluation_plan, evaluations_json, run_jobs
 from .perf import run_benchmarks
 from .plots import plot_figures
@@ -165,9 +168,10 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
         adversaries = store.adversaries(policies, eps)
         plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
                                scales_of(cfg), cfg.horizon)
-        returns, counts = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers, cfg.address,
-                                   cfg.fresh, log)
+        returns, counts, seconds = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
+                                            cfg.address, cfg.fresh, log)
     evals = by_cell(plan, returns)
+    compute = compute_summary({p for p in policies.values() if p}, {a for a in adversaries.values() if a}, seconds)
 
     # 4. tables, figures, the JSON and the text
     cells, tables, overall = make_tables(evals, envs, modes, eps, store.missing)
@@ -175,6 +179,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     plot_figures(evals, curves, envs, modes, sweep_attacks, eps, figures_dir)
     gifs = render_gifs(comma_list(cfg.render_envs), modes, figures_dir, log) if cfg.render else []
     payload = {**made, "budget": cfg.budget, "seconds": round(time.time() - started, 1), "evaluations_run": counts,
+               "compute": compute,
                "envs": envs, "modes": modes, "seeds": training_seeds,
                "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"{DEFENSE_TABLE}..{DEFENSE_TABLE + max(cfg.episodes, cfg.sweep_episodes) - 1}",

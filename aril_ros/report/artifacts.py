@@ -28,7 +28,9 @@ def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir:
         gail.train_gail(cfg, log=print)
         os.replace(partial, out)
         return out
-    cfg = settings_of(provenance, dagger.LearnerConfig, seed=seed, out=str(out), run_dir=str(run_dir))
+    # a task of one CPU: ARIL's round candidates one after the other in it, whatever the bundled run used
+    cfg = settings_of(provenance, dagger.LearnerConfig, seed=seed, out=str(out), run_dir=str(run_dir), workers=1,
+                      address="")
     print(f"[report] training {out.stem}: {command_line('aril train-learner', cfg)}", flush=True)
     return Path(dagger.train_learner(cfg, log=print))
 

@@ -61,8 +61,10 @@ def evaluation_plan(policies: dict, adversaries: dict, eps: dict, episodes: int,
     return plan
 
 
-def _evaluate_job(job: dict) -> list[float]:
-    return evaluation_task(job)["returns"]
+def _evaluate_job(job: dict) -> dict:
+    """The evaluation's per-episode returns and how long it took its CPU."""
+    started = time.time()
+    return {"returns": evaluation_task(job)["returns"], "seconds": round(time.time() - started, 2)}
 
 
 def job_key(job: dict) -> str:
@@ -72,19 +74,20 @@ def job_key(job: dict) -> str:
 
 
 def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
-             ) -> tuple[list[list[float]], dict]:
+             ) -> tuple[list[list[float]], dict, list[float | None]]:
     """Per-episode returns of each evaluation, from ``cache`` or computed as tasks (``workers`` CPUs of a local
-    Ray, or the cluster at ``address``), and how many distinct evaluations were run and read from the cache. Each
-    result is cached as it comes back, so a killed report resumes. Equal jobs (a mode-independent policy's clean
-    run, asked for by both modes) run once."""
+    Ray, or the cluster at ``address``); how many distinct evaluations were run and read from the cache; and the
+    seconds each distinct one took its CPU, as its task measured it (None: cached before times were kept). Each
+    result is cached as it comes back, so a killed report resumes. Equal jobs
+    (a mode-independent policy's clean run, asked for by both modes) run once."""
     cache.mkdir(parents=True, exist_ok=True)
     keys = [job_key(job) for job in jobs]
-    done: dict[str, list[float]] = {}
+    done: dict[str, dict] = {}
     todo: dict[str, dict] = {}
     for key, job in zip(keys, jobs):
         hit = cache / f"{key}.json"
         if hit.exists() and not fresh:
-            done[key] = json.loads(hit.read_text())["returns"]
+            done[key] = json.loads(hit.read_text())
         else:
             todo[key] = job
     counts = {"run": len(todo), "cached": len(done)}
@@ -92,14 +95,15 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
     started = time.time()
     todo_keys = list(todo)
     calls = [(shipped_job(todo[k]),) for k in todo_keys]
-    for n, (index, returns) in enumerate(run_tasks(_evaluate_job, calls, workers, address, label="evaluations",
-                                                   log=log), 1):
+    for n, (index, result) in enumerate(run_tasks(_evaluate_job, calls, workers, address, label="evaluations",
+                                                  log=log), 1):
         key = todo_keys[index]
-        job, done[key] = todo[key], returns
-        (cache / f"{key}.json").write_text(json.dumps({"job": job, "returns": done[key]}))
+        job, done[key] = todo[key], {"job": todo[key], **result}
+        (cache / f"{key}.json").write_text(json.dumps(done[key]))
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
-            f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(done[key]):.1f}", flush=True)
-    return [done[key] for key in keys], counts
+            f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(result['returns']):.1f}",
+            flush=True)
+    return [done[key]["returns"] for key in keys], counts, [result.get("seconds") for result in done.values()]
 
 
 def by_cell(plan: list[tuple[Key, dict]], returns: list[list[float]]) -> dict[tuple, list[list[float]]]:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..envs import layout_of
 from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES
+from .compute import compute_lines
 from .paper import PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
 from .stats import worst_attack
 from .tables import DAGGER_ATTACKS
@@ -163,7 +164,7 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
         "that hurt it most among random, FGSM, FGSM^k (10 steps), SPSA^k (black-box, 5 steps) and an ARIL-A trained "
         "against that very defense.",
         "- eps per env and mode: the calibrated one (`aril_ros/data/eps_calibration.json`, made by "
-        "`aril calibrate-eps`).", "",
+        "`aril calibrate-eps`).", *compute_lines(payload["compute"]), "",
     ]
     for mode in tables:
         number = 1 if mode == "sensory" else 2
