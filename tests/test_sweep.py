@@ -195,3 +195,25 @@ def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
     assert counts == {"run": len(jobs) - finished, "cached": finished}
     assert all(len(r) == 4 for r in returns)
     assert len(seconds) == len(jobs) and all(s > 0 for s in seconds)  # the cached ones kept the time they took
+
+
+def test_the_cache_knows_files_by_content_so_a_committed_cache_serves_another_checkout(tmp_path):
+    import shutil
+
+    here, there = tmp_path / "here", tmp_path / "elsewhere" / "checkout"
+    for checkout in (here, there):
+        checkout.mkdir(parents=True)
+        shutil.copy(bundled_file("dagger", "Swimmer-v5"), checkout / "Swimmer-v5.pt")
+    job = {"env": "Swimmer-v5", "mode": "sensory", "attack": "random", "eps": 0.3, "episodes": 1, "seed": 3000,
+           "horizon": 40}
+    first, counts, _ = run_jobs([{**job, "policy": str(here / "Swimmer-v5.pt")}], tmp_path / "cache", 1, "", False,
+                                quiet)
+    assert counts == {"run": 1, "cached": 0}
+    again, counts, _ = run_jobs([{**job, "policy": str(there / "Swimmer-v5.pt")}], tmp_path / "cache", 1, "", False,
+                                quiet)
+    assert counts == {"run": 0, "cached": 1} and again == first
+    # another file at the same path is another evaluation
+    shutil.copy(bundled_file("dart", "Swimmer-v5"), there / "Swimmer-v5.pt")
+    _, counts, _ = run_jobs([{**job, "policy": str(there / "Swimmer-v5.pt")}], tmp_path / "cache", 1, "", False,
+                            quiet)
+    assert counts == {"run": 1, "cached": 0}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,9 +69,11 @@ def _evaluate_job(job: dict) -> dict:
 
 
 def job_key(job: dict) -> str:
-    """The cache key: the evaluation's arguments and the digests of the policy and adversary files."""
+    """The cache key: the evaluation's arguments, its policy and adversary files by content (digest), not by
+    path: the same files give the same evaluation in any checkout, so a committed cache serves a fresh clone."""
     files = {k: digest(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}
-    return hashlib.sha256(json.dumps([job, files], sort_keys=True).encode()).hexdigest()[:20]
+    arguments = {k: v for k, v in job.items() if k not in files}
+    return hashlib.sha256(json.dumps([arguments, files], sort_keys=True).encode()).hexdigest()[:20]
 
 
 def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
@@ -99,7 +102,10 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
                                                   log=log), 1):
         key = todo_keys[index]
         job, done[key] = todo[key], {"job": todo[key], **result}
-        (cache / f"{key}.json").write_text(json.dumps(done[key]))
+        # whole or not at all: a cache committed while a report runs (benchmarks/scripts/full-protocol.sh) is read
+        partial = cache / f"{key}.json.partial"
+        partial.write_text(json.dumps(done[key]))
+        os.replace(partial, cache / f"{key}.json")
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
             f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(result['returns']):.1f}",
             flush=True)
