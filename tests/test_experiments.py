@@ -64,6 +64,7 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
     from aril_ros import registry
     from aril_ros.adversary import load_adversary
     from aril_ros.experiments import DefenseTableConfig, defense_table
+    from aril_ros.sweep import digest_of
 
     monkeypatch.setattr(registry, "DATA_DIR", tmp_path / "data")  # bundled policies of its own, no adversary to reuse
     for seed, (kind, name) in enumerate((("expert", "Swimmer-v5"), ("dagger", "Swimmer-v5"),
@@ -80,7 +81,10 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
         worst = min(cell["attacks"].values(), key=lambda a: a["mean"])
         assert cell["mean"] == worst["mean"] and cell["attacks"][cell["worst"]] == worst
         assert cell["drop"] == round(1 - cell["mean"] / row["dagger_clean"], 4)
-        assert cell["adversary"]["victim"].endswith(f"{defense}/Swimmer-v5{'-sensory' if defense == 'aril' else ''}.pt")
+        # trained against the defense by its bundled name (any node finds its own copy), that very file
+        bundled = tmp_path / "data" / defense / f"Swimmer-v5{'-sensory' if defense == 'aril' else ''}.pt"
+        assert cell["adversary"]["victim"] == defense
+        assert cell["adversary"]["victim_sha256"] == digest_of(bundled.read_bytes())
         assert (tmp_path / "adv" / f"Swimmer-v5-sensory-{defense}.pt").exists()
     assert row["dagger_clean"] == row["cells"]["dagger"]["clean"]
     text = (tmp_path / "def.md").read_text()
