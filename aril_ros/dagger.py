@@ -16,8 +16,10 @@ round::
                                 its adversaries' seconds on the clock and their trainings' own, summed)
     <run_dir>/data.npz          the aggregated data set (obs, expert_action, episode, round, source)
     <run_dir>/pi-<r>.pt         pi_r, the learner fitted after round r - 1 (a policy file)
-    <run_dir>/adversary-<r>.pt  ARIL only: f_r, the adversary trained against pi_r
-    <run_dir>/adversary-<r>-seed<k>.pt  ARIL with adversary_seeds:=N > 1: the candidates f_r was chosen from
+    <run_dir>/adversary-<r>.pt  ARIL only: f_r, the adversary trained against pi_r (none when round_attacks:=
+                                made a query attack f_r: the round's record in state.json names it, "attack")
+    <run_dir>/adversary-<r>-seed<k>.pt  ARIL with adversary_seeds:=N > 1 or round_attacks:=: the trained
+                                candidates f_r was chosen from
     <run_dir>/round-<r>.mcap    source:=graph only: the round's run log
 
 :func:`train_learner` reads top to bottom: check the settings, open (or resume) the run directory,
@@ -39,7 +41,7 @@ import torch
 from . import plugins, seeds
 from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
-from .args import arg
+from .args import arg, comma_list
 from .attacks import make_attack
 from .dataset import DaggerDataset
 from .envs import HORIZON, layout_of
@@ -49,9 +51,11 @@ from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
 from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps
 from .rollout import RolloutEngine
-from .step import episode_stats
+from .step import disagreement, episode_stats
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
+ROUND_ATTACKS = ("spsa", "random")
+"""Attacks that may be ARIL's f_t beside the trained adversaries (round_attacks:=): black-box, as ARIL-A is."""
 SOURCES = ("inprocess", "graph")
 
 
@@ -83,6 +87,10 @@ class LearnerConfig:
                           "local Ray (1: one after the other in this process); the files are the same either way",
                        low=1)
     address: str = arg("", "aril: train the candidates on this Ray cluster instead (<head ip>:6379, or auto)")
+    round_attacks: str = arg("", "aril: black-box attacks (comma-separated: spsa, random) that compete with the "
+                                 "trained adversaries for f_t; then every candidate is judged by pi_t's mean episode "
+                                 "disagreement with the expert under it (the paper's objective) on eval_episodes "
+                                 "episodes, and the largest is f_t")
     eval_episodes: int = arg(5, f"dr and aril: episodes of each learner's clean evaluation (env seeds {seeds.LEARNER_EVAL}...)")
     seed: int = arg(0, "seed of the fits, noise and adversaries; the rounds collect in the seed's training block "
                        "(aril_ros.seeds.collection(seed, round))")
@@ -155,13 +163,13 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     run = LearnerRun(cfg, log)
     for r in range(len(run.rounds), cfg.rounds + 1):
         started = time.time()
-        adversary_file = train_round_adversary(cfg, run, r, log)
+        attack, adversary_file = train_round_adversary(cfg, run, r, log)
         adversary_seconds = time.time() - started
-        record, part = collect(cfg, run, r, adversary_file)
+        record, part = collect(cfg, run, r, attack, adversary_file)
         if r < cfg.rounds:
             record.update(run.fit_next(r, part))
         record["seconds"] = round(time.time() - started, 1)
-        if adversary_file:
+        if r > 0 and run.attack == "aril_a":
             record.update(adversary_seconds=round(adversary_seconds, 1),
                           adversary_cpu_seconds=sum(load_adversary(file).meta["provenance"]["train_seconds"]
                                                     for file in round_candidates(cfg, run, r)))
@@ -185,6 +193,11 @@ def checked(cfg: LearnerConfig) -> LearnerConfig:
         raise ValueError("rounds:= must be >= 1")
     if cfg.adversary_seeds < 1:
         raise ValueError(f"adversary_seeds:= must be >= 1, got {cfg.adversary_seeds}")
+    for name in comma_list(cfg.round_attacks):
+        if name not in ROUND_ATTACKS:
+            raise ValueError(f"round_attacks:= takes black-box attacks ({', '.join(ROUND_ATTACKS)}), got {name!r}")
+    if cfg.round_attacks and (cfg.algorithm != "aril" or cfg.warm_start):
+        raise ValueError("round_attacks:= is for algorithm:=aril without warm_start (which needs a learned f_{t-1})")
     if cfg.source not in SOURCES:
         raise ValueError(f"source:= must be one of {', '.join(SOURCES)}, got {cfg.source!r}")
     if cfg.source == "graph" and cfg.algorithm == "dart":
@@ -269,12 +282,13 @@ class LearnerRun:
             engine.close()
 
 
-def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> str:
-    """ARIL: f_r, the adversary trained against pi_r (warm-started from f_{r-1} if asked); with
-    ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates; 0 when no
-    episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; else none."""
+def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> tuple[str, str]:
+    """Round ``r``'s attack and adversary file: for ARIL, f_r trained against pi_r (warm-started from f_{r-1} if
+    asked); with ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates;
+    0 when no episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; with ``round_attacks`` the
+    strongest on pi_r of the candidates and those attacks (:func:`strongest_on`). Else the run's attack, no file."""
     if r == 0 or run.attack != "aril_a":
-        return ""
+        return run.attack, ""
     out, candidates = run.dir / f"adversary-{r}.pt", round_candidates(cfg, run, r)
     init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
     wanted = [AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
@@ -282,30 +296,57 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> s
                               init=init, out=str(file)) for k, file in enumerate(candidates)]
     # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
     ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
+    if cfg.round_attacks:
+        attack, file = strongest_on(cfg, run, r, [("aril_a", str(f)) for f in candidates]
+                                    + [(name, "") for name in comma_list(cfg.round_attacks)], log)
+        if not file:
+            return attack, ""
+        candidates = [Path(file)]
     if len(candidates) > 1:
         objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
         best = int(np.argmax(objectives))
-        shutil.copyfile(candidates[best], out)
         log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
             + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
-    return str(out)
+        candidates = [candidates[best]]
+    if candidates[0] != out:
+        shutil.copyfile(candidates[0], out)
+    return "aril_a", str(out)
+
+
+def strongest_on(cfg: LearnerConfig, run: LearnerRun, r: int, options: list[tuple[str, str]], log
+                 ) -> tuple[str, str]:
+    """The (attack, adversary file) of ``options`` under which pi_r disagrees most with the expert: the paper's
+    objective, the summed squared disagreement per episode, averaged over ``eval_episodes`` episodes that every
+    option plays alike (:func:`seeds.round_judging`)."""
+    learner, objectives = run.learner(r), []
+    for name, file in options:
+        attack = make_attack(name, run.layout, cfg.eps, victim=learner, expert=run.expert, adversary=file or None,
+                             mode=run.mode)
+        traj = run.rollout(learner, attack, run.mode, cfg.eval_episodes, seeds.round_judging(cfg.seed, r))
+        objectives.append(float(disagreement(traj.action, traj.expert_action).sum()) / len(traj.length))
+    best = int(np.argmax(objectives))
+    labels = [name + (f" {Path(file).name}" if file else "") for name, file in options]
+    log(f"[train-learner {run.name}] round {r}: f_{r} is {labels[best]} (objectives on pi_{r}: "
+        + ", ".join(f"{label} {o:.1f}" for label, o in zip(labels, objectives)) + ")", flush=True)
+    return options[best]
 
 
 def round_candidates(cfg: LearnerConfig, run: LearnerRun, r: int) -> list[Path]:
     """The files of round ``r``'s trained adversaries: f_r itself, or the candidates it is chosen from."""
-    if cfg.adversary_seeds == 1:
+    if cfg.adversary_seeds == 1 and not cfg.round_attacks:
         return [run.dir / f"adversary-{r}.pt"]
     return [run.dir / f"adversary-{r}-seed{k}.pt" for k in range(cfg.adversary_seeds)]
 
 
-def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) -> tuple[dict, DaggerDataset]:
+def collect(cfg: LearnerConfig, run: LearnerRun, r: int, attack: str, adversary_file: str
+            ) -> tuple[dict, DaggerDataset]:
     """Run round ``r``: pi_r under the round's attack (its run is also its evaluation), or DART's noisy
     expert (pi_r then judged apart); the round's record and its (observation seen, expert action) pairs."""
     learner = run.learner(r)
-    mode, attack_name = (run.mode, run.attack) if r > 0 else ("clean", "none")
+    mode, attack_name = (run.mode, attack) if r > 0 else ("clean", "none")
     eps = cfg.eps if attack_name != "none" else 0.0
     seed = seeds.collection(cfg.seed, r)
-    record = {"round": r}
+    record = {"round": r, **({"attack": attack_name} if attack_name != run.attack and r > 0 else {})}
     if cfg.source == "graph":
         policy = cfg.expert if r == 0 else str(run.policy_file(r))
         spec = RoundSpec(env=cfg.env, mode=mode, attack=attack_name, eps=eps, policy=policy, expert=cfg.expert,
@@ -341,7 +382,8 @@ def collect(cfg: LearnerConfig, run: LearnerRun, r: int, adversary_file: str) ->
 
 def round_line(cfg: LearnerConfig, run: LearnerRun, record: dict) -> str:
     r = record["round"]
-    who = "expert" if r == 0 else f"pi_{r}" + (f" {run.mode}/{run.attack}" if run.attack != "none" else "")
+    attack = record.get("attack", run.attack)
+    who = "expert" if r == 0 else f"pi_{r}" + (f" {run.mode}/{attack}" if attack != "none" else "")
     return (f"[train-learner {run.name}] round {r}: {who} return {record['return']:8.1f} ± {record['return_std']:6.1f}"
             + (f" (clean {record['clean_return']:.1f})" if "clean_return" in record else "")
             + (f" (noisy expert {record['collected_return']:.1f}, noise trace {record['noise_trace']:.4f})"

@@ -41,6 +41,9 @@ ROUND_CANDIDATE_STRIDE = 1_000_000
 """Training seeds apart of a round's candidate adversaries (``train-learner adversary_seeds:=N``): candidate ``k``
 of round ``r`` trains with ``round_weights(seed, r) + k * ROUND_CANDIDATE_STRIDE``, far above the round seeds of
 every training seed below 1000, so no two share their env seeds."""
+ROUND_JUDGING = 5_000
+"""Offset inside a round's slice where ``train-learner round_attacks:=`` judges the round's candidate attacks on
+pi_r (after the round's own collection, which takes its first ``episodes`` seeds)."""
 ADVERSARY_SLICE = 500_000
 """Offset inside a training seed's block where ``train-adversary`` draws its episodes (after the rounds)."""
 
@@ -55,6 +58,12 @@ def training_block(seed: int) -> int:
 def collection(seed: int, round_: int) -> int:
     """First env seed of round ``round_`` of ``train-learner`` (BC's demonstrations: round 0)."""
     return training_block(seed) + round_ * ROUND_BLOCK
+
+
+def round_judging(seed: int, round_: int) -> int:
+    """First env seed of the episodes on which round ``round_``'s candidate attacks are judged (every candidate
+    the same episodes)."""
+    return collection(seed, round_) + ROUND_JUDGING
 
 
 def adversary_training(seed: int) -> int:

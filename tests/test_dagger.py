@@ -192,3 +192,26 @@ def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_pa
     assert made["rounds_log"][1]["adversary_cpu_seconds"] == pytest.approx(trainings)
     assert made["cpu_seconds"] == pytest.approx(made["train_seconds"] + trainings
                                                 - made["rounds_log"][1]["adversary_seconds"], abs=0.2)
+
+def test_query_attacks_compete_with_the_trained_adversaries_for_f_t(tmp_path):
+    """round_attacks:= judges the trained adversary and each query attack by pi_t's disagreement with the expert
+    on the same episodes; the largest is f_t, and the round collects under it."""
+    import re
+
+    lines = []
+    cfg = small(tmp_path, algorithm="aril", mode="sensory", eps=0.3, rounds=1, adversary_steps=8192,
+                round_attacks="spsa,random")
+    train_learner(cfg, log=lambda *a, **k: lines.append(str(a[0]) if a else ""))
+    chosen = next(line for line in lines if "f_1 is" in line)
+    objectives = dict(re.findall(r"(aril_a adversary-1-seed0\.pt|spsa|random) (-?[0-9.]+)",
+                                 chosen.split("objectives")[1]))
+    assert set(objectives) == {"aril_a adversary-1-seed0.pt", "spsa", "random"}
+    strongest = max(objectives, key=lambda label: float(objectives[label]))
+    assert f"f_1 is {strongest} (" in chosen
+    record = json.loads((tmp_path / "run" / "state.json").read_text())["rounds"][1]
+    assert record.get("attack", "aril_a") == strongest.split()[0]
+    assert (tmp_path / "run" / "adversary-1.pt").exists() == (strongest.split()[0] == "aril_a")
+    with pytest.raises(ValueError, match="black-box attacks"):
+        train_learner(small(tmp_path, algorithm="aril", round_attacks="fgsm_k"), log=quiet)
+    with pytest.raises(ValueError, match="without warm_start"):
+        train_learner(small(tmp_path, algorithm="aril", round_attacks="spsa", warm_start=True), log=quiet)
