@@ -177,7 +177,7 @@ def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_pa
     files = {}
     for workers in (1, 2):
         cfg = LearnerConfig(env="Swimmer-v5", algorithm="aril", mode="physical", eps=0.05, rounds=1, episodes=1,
-                            epochs=2, eval_episodes=1, adversary_steps=8192, adversary_seeds=2, workers=workers,
+                            epochs=2, eval_episodes=1, adversary_steps=4096, adversary_seeds=2, workers=workers,
                             run_dir=f"run{workers}", out=f"out{workers}.pt")
         train_learner(cfg, log=quiet)
         files[workers] = [load_adversary(Path(f"run{workers}/adversary-1-seed{k}.pt")) for k in range(2)]
@@ -199,7 +199,7 @@ def test_query_attacks_compete_with_the_trained_adversaries_for_f_t(tmp_path):
     import re
 
     lines = []
-    cfg = small(tmp_path, algorithm="aril", mode="sensory", eps=0.3, rounds=1, adversary_steps=8192,
+    cfg = small(tmp_path, algorithm="aril", mode="sensory", eps=0.3, rounds=1, adversary_steps=4096,
                 round_attacks="spsa,random")
     train_learner(cfg, log=lambda *a, **k: lines.append(str(a[0]) if a else ""))
     chosen = next(line for line in lines if "f_1 is" in line)
