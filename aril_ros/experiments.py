@@ -31,6 +31,7 @@ from .provenance import portable, stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
                        bundled_file, calibrated_eps, user_calibration)
 from .report.stats import summarise, worst_attack
+from .sweep import session
 
 SEARCH_ROW = "aril_a_search"
 """ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
@@ -217,8 +218,9 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                                           attack_file=str(adversary) if attack == "aril_a" else "",
                                           search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
-    ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)  # every env's at once, as tasks
-    results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
+    with session(cfg.workers, cfg.address):  # one Ray for the trainings and the evaluations
+        ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)  # every env's at once, as tasks
+        results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
     fresh = []
     for env, adversary in adversaries.items():
         cells = {}
@@ -335,9 +337,10 @@ def defense_table(cfg: DefenseTableConfig, log=print) -> dict:
             for adversary in adversaries:
                 jobs[env, policy, str(adversary)] = EvalConfig(policy=policy, mode=cfg.mode, attack="aril_a",
                                                                eps=eps, attack_file=str(adversary), **common)
-    ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)
-    cell = dict(zip(jobs, map(_cell, evaluate_all([asdict(j) for j in jobs.values()], cfg.workers, cfg.address,
-                                                  log))))
+    with session(cfg.workers, cfg.address):  # one Ray for the trainings and the evaluations
+        ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)
+        cell = dict(zip(jobs, map(_cell, evaluate_all([asdict(j) for j in jobs.values()], cfg.workers,
+                                                      cfg.address, log))))
     fresh = []
     for env in comma_list(cfg.envs):
         reference = cell[env, str(bundled_file(DEFAULT_POLICY, env)), "none"]["mean"]
