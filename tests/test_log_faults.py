@@ -306,7 +306,7 @@ def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(r
     cfg = dagger.LearnerConfig(env="Swimmer-v5", mode="sensory", source="graph", run_dir=str(tmp_path / "run"))
     run = dagger.LearnerRun(cfg, log=lambda *a, **k: None)
     (run.dir / "round-0.mcap").write_bytes(log.read_bytes()[:5000])  # the attempt killed mid-round
-    record, part = dagger.collect(cfg, run, 0, "")
+    record, part = dagger.collect(cfg, run, 0, "none", "")
     assert len(part) == 40 and (run.dir / "round-0.mcap").read_bytes() == log.read_bytes()
 
 
