@@ -81,8 +81,8 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
     """Per-episode returns of each evaluation, from ``cache`` or computed as tasks (``workers`` CPUs of a local
     Ray, or the cluster at ``address``); how many distinct evaluations were run and read from the cache; and the
     seconds each distinct one took its CPU, as its task measured it (None: cached before times were kept). Each
-    result is cached as it comes back, so a killed report resumes. Equal jobs
-    (a mode-independent policy's clean run, asked for by both modes) run once."""
+    result is cached as it comes back, so a killed report resumes. Equal jobs (a mode-independent policy's clean
+    run, asked for by both modes) run once."""
     cache.mkdir(parents=True, exist_ok=True)
     keys = [job_key(job) for job in jobs]
     done: dict[str, dict] = {}
