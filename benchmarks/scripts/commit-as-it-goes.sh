@@ -12,13 +12,14 @@ while [ $# -gt 0 ] && [ "$1" != -- ]; do paths+=("$1"); shift; done
 [ $# -gt 1 ] || { echo "usage: $0 \"<what it makes>\" <path>... -- <command> [arg...]" >&2; exit 2; }
 shift
 
-commit() {  # what has finished under the paths that exist by now; nothing new: no commit
+commit() {  # what has finished under the paths that hold a file by now; nothing new: no commit
   local there=() path
-  for path in "${paths[@]}"; do
-    if [ -e "$path" ] || git ls-files --error-unmatch -- "$path" >/dev/null 2>&1; then there+=("$path"); fi
+  for path in "${paths[@]}"; do  # git refuses a pathspec without a file (an empty directory), and then adds nothing
+    if [ -n "$(find "$path" -type f ! -name '*.tmp' ! -name '*.partial*' -print -quit 2>/dev/null)" ] || git ls-files --error-unmatch -- "$path" \
+      >/dev/null 2>&1; then there+=("$path"); fi
   done
   [ ${#there[@]} -gt 0 ] || return 0
-  git add -A -- "${there[@]}" ":(exclude)*.tmp" ":(exclude)*.partial*"
+  git add -A -- "${there[@]}" ":(exclude)*.tmp" ":(exclude)*.partial*" || true
   git commit -q -m "$1" -- "${there[@]}" >/dev/null || true
 }
 
