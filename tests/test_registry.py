@@ -66,7 +66,8 @@ def test_settings_travel_as_json_in_provenance():
 
     provenance = load_weights(registry.bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]
     cfg = settings_of(provenance, LearnerConfig, seed=2)
-    assert (cfg.algorithm, cfg.env, cfg.mode, cfg.warm_start, cfg.seed) == ("aril", "Swimmer-v5", "physical", True, 2)
+    assert (cfg.algorithm, cfg.env, cfg.mode, cfg.adversary_seeds, cfg.warm_start, cfg.seed) == (
+        "aril", "Swimmer-v5", "physical", 3, False, 2)  # the bundled one: each round's f_t the strongest of three
     assert "/work/" not in str(provenance)  # committed files name no machine's paths
     made = stamp("aril train-learner", cfg)
     assert settings_of(made, LearnerConfig) == cfg and made["command"].startswith("aril train-learner algorithm:=aril")
