@@ -116,5 +116,5 @@ def aril_rounds(policies: dict) -> dict:
             "round": [r["round"] for r in rounds], "attacked": [r["return"] for r in rounds],
             "clean": [r.get("clean_return", r["return"]) for r in rounds],  # round 0: the expert's clean demos
             "selected": provenance.get("selected"), "adversary_steps": settings.adversary_steps,
-            "warm_start": settings.warm_start}
+            "warm_start": settings.warm_start, "adversary_seeds": settings.adversary_seeds}
     return curves

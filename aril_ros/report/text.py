@@ -75,14 +75,12 @@ def comparison(payload: dict, cells: dict) -> list[str]:
               + (". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
                  "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls)."
                  if "Ant-v5" in envs else "."),
-              "- *ARIL's adversary budget.* " + _list([
-                  f"{name}: {c['adversary_steps']:,} steps per round"
-                  + (", warm-started from the previous round's adversary" if c["warm_start"] else ", fresh each round")
-                  for name, c in payload["aril_rounds"].items()])
-              + ". The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. With "
-                "fresh adversaries each round the learner soon beats each weak f_t and stays fragile against a fresh, "
-                "stronger one; a warm-started adversary keeps up" + _fresh_runs(payload["aril_rounds"])
-              + ". The paper does not give its per-round budget.",
+              "- *ARIL's adversary budget.* " + _list([f"{name}: {_round_adversaries(c)}"
+                                                        for name, c in payload["aril_rounds"].items()])
+              + ". The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. A "
+                "round adversary weaker than that lets the learner beat each f_t and stay fragile against a stronger "
+                "one; warm-starting each round's adversary from the last, or keeping the strongest of several fresh "
+                "ones, keeps up (`results/aril_a_tuning.md`). The paper does not give its per-round budget.",
               "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds per defense: the intervals are over the "
                                     "seeds' means (Student-t), so they bound seed-to-seed variation and are wide with "
                                     "this few seeds; each seed's episodes are in the JSON."
@@ -92,9 +90,12 @@ def comparison(payload: dict, cells: dict) -> list[str]:
     return lines
 
 
-def _fresh_runs(curves: dict) -> str:
-    fresh = [name for name, curve in curves.items() if not curve["warm_start"]]
-    return f" ({_list(fresh)}: fresh adversaries each round)" if fresh else ""
+def _round_adversaries(curve: dict) -> str:
+    """How an ARIL run made each round's f_t (a record from before ``adversary_seeds`` existed trained one)."""
+    seeds = curve.get("adversary_seeds", 1)
+    return f"{curve['adversary_steps']:,} steps per round, " + (
+        "warm-started from the previous round's adversary" if curve["warm_start"] else
+        "fresh each round" + (f", the strongest of {seeds}" if seeds > 1 else ""))
 
 
 def performance(benchmarks: dict) -> list[str]:
@@ -180,9 +181,8 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
               "Clean return and return under that round's adversary f_t, per round (round 0: the expert's "
               "demonstrations); the dotted line marks the returned policy (the best under its own adversary).", "",
               f"![ARIL rounds]({figures}/aril-rounds.png)", "",
-              "| run | rounds | returned | adversary steps per round | warm start |", "|---|---|---|---|---|"]
-    lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {c['adversary_steps']:,} | "
-              f"{'yes' if c['warm_start'] else 'no'} |"
+              "| run | rounds | returned | round adversaries |", "|---|---|---|---|"]
+    lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {_round_adversaries(c)} |"
               for name, c in payload["aril_rounds"].items()]
     lines += ["", "## Performance", "", *performance(payload["benchmarks"]), ""]
     lines += ["## Seeing an attack", ""]
