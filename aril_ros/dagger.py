@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -45,6 +44,7 @@ from .args import arg, comma_list
 from .attacks import make_attack
 from .dataset import DaggerDataset
 from .envs import HORIZON, layout_of
+from .files import write_atomically
 from .learners import fit_policy
 from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, resolve_policy, save_policy
@@ -267,12 +267,12 @@ class LearnerRun:
         policy = fit_policy(self.data, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch,
                             seeds.round_weights(cfg.seed, r), provenance)
         save_policy(policy, self.policy_file(r + 1))
-        _save_atomic(self.data_path, lambda tmp: _write_data(tmp, self.data, self.data_round))
+        write_atomically(self.data_path, lambda partial: _write_data(partial, self.data, self.data_round))
         return {"samples": len(self.data), "train_loss": policy.meta.provenance["final_train_loss"]}
 
     def finish_round(self, record: dict) -> None:
         self.rounds.append(record)
-        _save_atomic(self.state_path, lambda tmp: tmp.write_text(json.dumps(self.state, indent=1)))
+        write_atomically(self.state_path, lambda partial: partial.write_text(json.dumps(self.state, indent=1)))
 
     def rollout(self, policy, attack, mode: str, episodes: int, seed: int):
         engine = RolloutEngine(self.cfg.env, policy, self.expert, attack, mode, n_envs=min(episodes, 16))
@@ -417,12 +417,6 @@ def save_selected(cfg: LearnerConfig, run: LearnerRun, r: int, selection: str, *
         **provenance,
     })
     return save_policy(policy, cfg.out or f"runs/{run.name}.pt")
-
-
-def _save_atomic(path: Path, write) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
 
 
 def _write_data(path: Path, data: DaggerDataset, rounds: np.ndarray) -> None:

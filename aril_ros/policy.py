@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .files import write_atomically
 from .registry import BUNDLED_NAMES, BundledFileError, bundled_file
 
 VERSION = 1
@@ -194,10 +195,7 @@ def save_weights(module: nn.Module, meta: dict, path: str | Path, kind: str = "p
         "meta": json.dumps(meta, sort_keys=True),
         "state_dict": {k: v.detach().clone() for k, v in module.state_dict().items()},
     }
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)  # never leave a half-written file behind
-    return path
+    return write_atomically(path, lambda partial: torch.save(blob, partial))
 
 
 def load_weights(path: str | Path, kind: str = "policy") -> tuple[dict, dict]:

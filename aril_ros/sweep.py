@@ -27,6 +27,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from .files import write_atomically
+
 RAY = "ray==2.60.*"
 """What the ``cluster`` extra of pyproject.toml installs (kept equal to it)."""
 
@@ -63,9 +65,7 @@ def node_copy(digest: str, suffix: str, fetch) -> Path:
     path = store / f"{digest}{suffix}"
     if not path.exists():
         store.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
-        partial.write_bytes(fetch())
-        os.replace(partial, path)
+        write_atomically(path, lambda partial: partial.write_bytes(fetch()))
     return path
 
 
@@ -248,9 +248,7 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
                 continue
             for original, data in produced.items():
                 Path(original).parent.mkdir(parents=True, exist_ok=True)
-                partial = Path(f"{original}.partial")
-                partial.write_bytes(data)
-                os.replace(partial, original)
+                write_atomically(original, lambda partial: partial.write_bytes(data))
             progress.finished(True)
             yield index, result
     finally:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 
 from .. import seeds
 from ..evaluation import evaluation_task, shipped_job
+from ..files import write_atomically
 from ..policy import PolicyFileError
 from ..registry import THREATS
 from ..sweep import run_tasks
@@ -103,9 +103,7 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
         key = todo_keys[index]
         job, done[key] = todo[key], {"job": todo[key], **result}
         # whole or not at all: a cache committed while a report runs (benchmarks/scripts/full-protocol.sh) is read
-        partial = cache / f"{key}.json.partial"
-        partial.write_text(json.dumps(done[key]))
-        os.replace(partial, cache / f"{key}.json")
+        write_atomically(cache / f"{key}.json", lambda partial: partial.write_text(json.dumps(done[key])))
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
             f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(result['returns']):.1f}",
             flush=True)
