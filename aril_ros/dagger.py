@@ -163,16 +163,14 @@ def train_learner(cfg: LearnerConfig, log=print) -> Path:
     run = LearnerRun(cfg, log)
     for r in range(len(run.rounds), cfg.rounds + 1):
         started = time.time()
-        attack, adversary_file = train_round_adversary(cfg, run, r, log)
+        adversary = train_round_adversary(cfg, run, r, log)
         adversary_seconds = time.time() - started
-        record, part = collect(cfg, run, r, attack, adversary_file)
+        record, part = collect(cfg, run, r, adversary.attack, adversary.file)
         if r < cfg.rounds:
             record.update(run.fit_next(r, part))
         record["seconds"] = round(time.time() - started, 1)
         if r > 0 and run.attack == "aril_a":
-            record.update(adversary_seconds=round(adversary_seconds, 1),
-                          adversary_cpu_seconds=sum(load_adversary(file).meta["provenance"]["train_seconds"]
-                                                    for file in round_candidates(cfg, run, r)))
+            record.update(adversary_seconds=round(adversary_seconds, 1), adversary_cpu_seconds=adversary.cpu_seconds)
         run.finish_round(record)
         log(round_line(cfg, run, record), flush=True)
     return select_best(cfg, run, log)
@@ -282,13 +280,25 @@ class LearnerRun:
             engine.close()
 
 
-def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> tuple[str, str]:
+@dataclass
+class RoundAdversary:
+    """A round's f_t as the round collects under it."""
+
+    attack: str
+    """the attack's name (``aril_a`` for a trained adversary)"""
+    file: str = ""
+    """the adversary file, for ``aril_a``"""
+    cpu_seconds: float = 0.0
+    """the training time of every candidate it was chosen from (the round's compute, not its wall time)"""
+
+
+def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> RoundAdversary:
     """Round ``r``'s attack and adversary file: for ARIL, f_r trained against pi_r (warm-started from f_{r-1} if
     asked); with ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates;
     0 when no episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; with ``round_attacks`` the
     strongest on pi_r of the candidates and those attacks (:func:`strongest_on`). Else the run's attack, no file."""
     if r == 0 or run.attack != "aril_a":
-        return run.attack, ""
+        return RoundAdversary(run.attack)
     out, candidates = run.dir / f"adversary-{r}.pt", round_candidates(cfg, run, r)
     init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
     wanted = [AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
@@ -296,21 +306,23 @@ def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> t
                               init=init, out=str(file)) for k, file in enumerate(candidates)]
     # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
     ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
+    made = {file: load_adversary(file).meta["provenance"] for file in candidates}
+    cpu_seconds = sum(provenance["train_seconds"] for provenance in made.values())
     if cfg.round_attacks:
         attack, file = strongest_on(cfg, run, r, [("aril_a", str(f)) for f in candidates]
                                     + [(name, "") for name in comma_list(cfg.round_attacks)], log)
         if not file:
-            return attack, ""
+            return RoundAdversary(attack, "", cpu_seconds)
         candidates = [Path(file)]
     if len(candidates) > 1:
-        objectives = [load_adversary(file).meta["provenance"]["final_episode_loss"] or 0.0 for file in candidates]
+        objectives = [made[file]["final_episode_loss"] or 0.0 for file in candidates]
         best = int(np.argmax(objectives))
         log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
             + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
         candidates = [candidates[best]]
     if candidates[0] != out:
         shutil.copyfile(candidates[0], out)
-    return "aril_a", str(out)
+    return RoundAdversary("aril_a", str(out), cpu_seconds)
 
 
 def strongest_on(cfg: LearnerConfig, run: LearnerRun, r: int, options: list[tuple[str, str]], log
