@@ -91,8 +91,8 @@ def comparison(payload: dict, cells: dict) -> list[str]:
 
 
 def _round_adversaries(curve: dict) -> str:
-    """How an ARIL run made each round's f_t (a record from before ``adversary_seeds`` existed trained one)."""
-    seeds = curve.get("adversary_seeds", 1)
+    """How an ARIL run made each round's f_t (its settings: an older file reads as the defaults, one per round)."""
+    seeds = curve["adversary_seeds"]
     return f"{curve['adversary_steps']:,} steps per round, " + (
         "warm-started from the previous round's adversary" if curve["warm_start"] else
         "fresh each round" + (f", the strongest of {seeds}" if seeds > 1 else ""))

@@ -11,7 +11,8 @@ attack table's victim and the quick start's).
 
 A judging adversary is copied in as the defense table's adversary of its seed (``<env>-<mode>-<defense>[-seed<k>].pt``
 in aril_ros/data/defense-adversary/) where that seed has none trained against the very file now bundled (its sha256,
-as ``aril defense-table`` checks), and only if it was itself trained against that file, so ``aril defense-table adversary_seeds:=3`` then trains just the missing ones.
+as ``aril defense-table`` checks), and only if it was itself trained against that file, so
+``aril defense-table adversary_seeds:=3`` then trains just the missing ones.
 
     .venv/bin/python benchmarks/scripts/bundle_widths.py
 """

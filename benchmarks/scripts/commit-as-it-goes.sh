@@ -15,8 +15,8 @@ shift
 commit() {  # what has finished under the paths that hold a file by now; nothing new: no commit
   local there=() path
   for path in "${paths[@]}"; do  # git refuses a pathspec without a file (an empty directory), and then adds nothing
-    if [ -n "$(find "$path" -type f ! -name '*.tmp' ! -name '*.partial*' -print -quit 2>/dev/null)" ] || git ls-files --error-unmatch -- "$path" \
-      >/dev/null 2>&1; then there+=("$path"); fi
+    if [ -n "$(find "$path" -type f ! -name '*.tmp' ! -name '*.partial*' -print -quit 2>/dev/null)" ] ||
+      git ls-files --error-unmatch -- "$path" >/dev/null 2>&1; then there+=("$path"); fi
   done
   [ ${#there[@]} -gt 0 ] || return 0
   git add -A -- "${there[@]}" ":(exclude)*.tmp" ":(exclude)*.partial*" || true
