@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
@@ -31,8 +32,26 @@ def now() -> str:
 
 
 def versions() -> dict:
-    """The versions of what decides a trajectory: a new MuJoCo or gymnasium changes returns as much as new code."""
-    return {name: metadata.version(name) for name in ("mujoco", "gymnasium", "numpy", "torch")}
+    """The versions of what decides a trajectory: a new MuJoCo or gymnasium changes returns as much as new code,
+    and so does the CPU: torch picks its matrix kernels by the instruction set, and they round differently, so
+    the same files give other episodes on another CPU model (bit-identical on one machine)."""
+    return {**{name: metadata.version(name) for name in ("mujoco", "gymnasium", "numpy", "torch")}, "cpu": cpu()}
+
+
+def cpu() -> str:
+    """The CPU model and the instruction set torch's kernels use on it, e.g. ``AMD EPYC (AVX512)``."""
+    import torch  # here, not at the top: most readers of a provenance never run a policy
+
+    model = next((line.split(":", 1)[1].strip() for line in _cpuinfo().splitlines()
+                  if line.startswith("model name")), platform.processor() or platform.machine())
+    return f"{model} ({torch.backends.cpu.get_cpu_capability()})"
+
+
+def _cpuinfo() -> str:
+    try:
+        return Path("/proc/cpuinfo").read_text()
+    except OSError:  # not Linux
+        return ""
 
 
 CHECKOUT = Path(__file__).resolve().parents[1]

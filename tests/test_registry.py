@@ -86,3 +86,15 @@ def test_provenance_records_paths_inside_the_checkout_relative_to_it(tmp_path):
     assert made["settings"]["victim"] == "aril_ros/data/aril/Swimmer-v5-physical.pt"
     assert " victim:=aril_ros/data/aril/Swimmer-v5-physical.pt " in made["command"]
     assert made["settings"]["out"] == str(tmp_path / "adversary.pt")
+
+
+def test_provenance_names_the_cpu_whose_kernels_made_the_figures():
+    """The same files give other episodes on a CPU with another instruction set (torch's kernels round
+    differently), so a record must say which CPU made it."""
+    import torch
+
+    from aril_ros.provenance import versions
+
+    recorded = versions()
+    assert set(recorded) == {"mujoco", "gymnasium", "numpy", "torch", "cpu"}
+    assert recorded["cpu"].endswith(f"({torch.backends.cpu.get_cpu_capability()})")
