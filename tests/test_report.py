@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from aril_ros.policy import load_weights
+from aril_ros.provenance import cpu
 from aril_ros.registry import THREATS, bundled_file
 from aril_ros.report import ReportConfig, build_report
 from aril_ros.report.stats import summarise, t95, worst_attack
@@ -95,6 +96,8 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
                         if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
     assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
     assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
+    # the CPU the evaluations ran on (another model gives other returns from the same files)
+    assert payload["evaluated_on"] == {cpu(): 80} and f"; evaluated on {cpu()} (another MuJoCo" in text
     # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
     stages = payload["compute"]["stages"]
     assert stages["evaluations"] == {**stages["evaluations"], "tasks": 80, "untimed": 0}

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from aril_ros.provenance import cpu
 from aril_ros.registry import adversary_path, bundled_file
-from aril_ros.report.jobs import FAILURES, run_jobs
+from aril_ros.report.jobs import FAILURES, evaluated_on, run_jobs
 from aril_ros.sweep import RAY, Produced, Shipped, connect, ensure_ray, run_tasks
 
 
@@ -191,10 +192,13 @@ def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
         subprocess.run(["pkill", "-KILL", "-s", str(driver.pid)], check=False)
     finished = len(list(cache.glob("*.json")))
     assert 1 <= finished < len(jobs), "the sweep was to be stopped part way"
-    returns, counts, seconds = run_jobs(jobs, cache, 1, "", False, quiet)
+    returns, counts, runs = run_jobs(jobs, cache, 1, "", False, quiet)
     assert counts == {"run": len(jobs) - finished, "cached": finished}
     assert all(len(r) == 4 for r in returns)
-    assert len(seconds) == len(jobs) and all(s > 0 for s in seconds)  # the cached ones kept the time they took
+    # the cached ones kept the time they took and the CPU they ran on
+    assert len(runs) == len(jobs) and all(run["seconds"] > 0 for run in runs)
+    assert evaluated_on(runs) == {cpu(): len(jobs)}
+    assert evaluated_on([*runs, {"seconds": 1.0}])["CPU not recorded"] == 1
 
 
 def test_the_cache_knows_files_by_content_so_a_committed_cache_serves_another_checkout(tmp_path):

@@ -59,7 +59,7 @@ from ..seeds import DEFENSE_TABLE
 from ..sweep import session
 from .artifacts import Artifacts, aril_rounds
 from .compute import compute_summary
-from .jobs import by_cell, digest, evaluation_plan, evaluations_json, run_jobs
+from .jobs import by_cell, digest, evaluated_on, evaluation_plan, evaluations_json, run_jobs
 from .perf import run_benchmarks
 from .plots import plot_figures
 from .tables import make_tables
@@ -168,10 +168,11 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
         adversaries = store.adversaries(policies, eps)
         plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
                                scales_of(cfg), cfg.horizon)
-        returns, counts, seconds = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
+        returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
                                             cfg.address, cfg.fresh, log)
     evals = by_cell(plan, returns)
-    compute = compute_summary({p for p in policies.values() if p}, {a for a in adversaries.values() if a}, seconds)
+    compute = compute_summary({p for p in policies.values() if p}, {a for a in adversaries.values() if a},
+                              [run.get("seconds") for run in runs])
 
     # 4. tables, figures, the JSON and the text
     cells, tables, overall = make_tables(evals, envs, modes, eps, store.missing)
@@ -179,7 +180,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     plot_figures(evals, curves, envs, modes, sweep_attacks, eps, figures_dir)
     gifs = render_gifs(comma_list(cfg.render_envs), modes, figures_dir, log) if cfg.render else []
     payload = {**made, "budget": cfg.budget, "seconds": round(time.time() - started, 1), "evaluations_run": counts,
-               "compute": compute,
+               "evaluated_on": evaluated_on(runs), "compute": compute,
                "envs": envs, "modes": modes, "seeds": training_seeds,
                "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"{DEFENSE_TABLE}..{DEFENSE_TABLE + max(cfg.episodes, cfg.sweep_episodes) - 1}",

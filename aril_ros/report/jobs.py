@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import json
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from .. import seeds
 from ..evaluation import evaluation_task, shipped_job
 from ..files import write_atomically
 from ..policy import PolicyFileError
+from ..provenance import cpu
 from ..registry import THREATS
 from ..sweep import run_tasks
 
@@ -63,9 +65,10 @@ def evaluation_plan(policies: dict, adversaries: dict, eps: dict, episodes: int,
 
 
 def _evaluate_job(job: dict) -> dict:
-    """The evaluation's per-episode returns and how long it took its CPU."""
+    """The evaluation's per-episode returns, how long it took its CPU, and which CPU (on a cluster, the node's:
+    another CPU model gives other returns from the same files)."""
     started = time.time()
-    return {"returns": evaluation_task(job)["returns"], "seconds": round(time.time() - started, 2)}
+    return {"returns": evaluation_task(job)["returns"], "seconds": round(time.time() - started, 2), "cpu": cpu()}
 
 
 def job_key(job: dict) -> str:
@@ -77,12 +80,12 @@ def job_key(job: dict) -> str:
 
 
 def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
-             ) -> tuple[list[list[float]], dict, list[float | None]]:
+             ) -> tuple[list[list[float]], dict, list[dict]]:
     """Per-episode returns of each evaluation, from ``cache`` or computed as tasks (``workers`` CPUs of a local
-    Ray, or the cluster at ``address``); how many distinct evaluations were run and read from the cache; and the
-    seconds each distinct one took its CPU, as its task measured it (None: cached before times were kept). Each
-    result is cached as it comes back, so a killed report resumes. Equal jobs (a mode-independent policy's clean
-    run, asked for by both modes) run once."""
+    Ray, or the cluster at ``address``); how many distinct evaluations were run and read from the cache; and how
+    each distinct one ran, as its task recorded it: ``seconds`` it took its CPU and ``cpu`` (either missing: cached
+    before it was kept). Each result is cached as it comes back, so a killed report resumes. Equal jobs (a
+    mode-independent policy's clean run, asked for by both modes) run once."""
     cache.mkdir(parents=True, exist_ok=True)
     keys = [job_key(job) for job in jobs]
     done: dict[str, dict] = {}
@@ -107,7 +110,14 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
             f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(result['returns']):.1f}",
             flush=True)
-    return [done[key]["returns"] for key in keys], counts, [result.get("seconds") for result in done.values()]
+    runs = [{k: v for k, v in result.items() if k not in ("job", "returns")} for result in done.values()]
+    return [done[key]["returns"] for key in keys], counts, runs
+
+
+def evaluated_on(runs: list[dict]) -> dict[str, int]:
+    """How many distinct evaluations ran on each CPU model (a report resumed on other machines, or a cluster's
+    nodes, can mix them); those cached before the CPU was kept count as ``CPU not recorded``."""
+    return dict(Counter(run.get("cpu", "CPU not recorded") for run in runs).most_common())
 
 
 def by_cell(plan: list[tuple[Key, dict]], returns: list[list[float]]) -> dict[tuple, list[list[float]]]:
