@@ -8,16 +8,20 @@ Each call is one task declaring one CPU (``cpus``). Nothing is shared through a 
 is marked :class:`Shipped` in its call and travels by content (put once per digest in Ray's object store, written
 on the worker's node under its digest, so a node holds each file once), and a file a task makes is marked
 :class:`Produced`: the task writes it on its node and its bytes travel back to the driver, which writes them where
-the call said. Results come back to the driver as they finish; the caller keeps them (the report's cache), so
+the call said. A folder a task keeps its progress in across interruptions (a training's run directory) is marked
+:class:`Kept`: the driver's own folder when the task runs on the driver's machine. Results come back to the driver as
+they finish; the caller keeps them (the report's cache), so
 killing the driver and running the same command again reruns only what had not finished. Ray is an extra
 (``pip install -e .[cluster]``, ``ray==2.60``): the sweeps install it on first use, the quick start never does.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -48,6 +52,26 @@ class Produced:
 
 
 @dataclass(frozen=True)
+class Kept:
+    """A folder a task keeps its progress in, so that the same call run again resumes (a training's run
+    directory). On the driver's machine it is the driver's folder itself; on another node, a folder of that
+    node's named after it that outlives the task: a retry there resumes, and its contents never travel (only the
+    task's :class:`Produced` files do). Made on the driver, it records where that is."""
+
+    path: Path  # as the call gives it; relative: to the driver's working folder
+    host: str = dataclasses.field(default_factory=socket.gethostname)
+    home: str = dataclasses.field(default_factory=os.getcwd)
+
+
+def kept_folder(kept: Kept) -> Path:
+    """Where a task keeps ``kept`` on this node."""
+    if kept.host == socket.gethostname():
+        return Path(kept.home) / kept.path
+    name = hashlib.sha256(f"{kept.host}:{Path(kept.home) / kept.path}".encode()).hexdigest()[:16]
+    return Path(tempfile.gettempdir()) / "aril_ros-kept" / name
+
+
+@dataclass(frozen=True)
 class _Content:
     path: Path  # as the call gave it
     digest: str
@@ -69,7 +93,7 @@ def node_copy(digest: str, suffix: str, fetch) -> Path:
     return path
 
 
-MARKED = (Shipped, Produced, _Content)
+MARKED = (Shipped, Produced, Kept, _Content)
 
 
 def _map(value, leaf, is_leaf=lambda value: isinstance(value, MARKED)):
@@ -114,6 +138,14 @@ def _task(fn, call):
                 return stored
             (scratch / path).parent.mkdir(parents=True, exist_ok=True)
             (scratch / path).symlink_to(stored)
+            return path
+        if isinstance(marked, Kept):  # reached through the call's own path, like a shipped file
+            folder = kept_folder(marked)
+            folder.mkdir(parents=True, exist_ok=True)
+            if path.is_absolute():
+                return folder
+            (scratch / path).parent.mkdir(parents=True, exist_ok=True)
+            (scratch / path).symlink_to(folder, target_is_directory=True)
             return path
         made[str(path)] = scratch / (path if not path.is_absolute() else path.name)
         made[str(path)].parent.mkdir(parents=True, exist_ok=True)
@@ -223,7 +255,7 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
         contents: dict[Path, _Content] = {}
 
         def ship(marked):
-            if isinstance(marked, Produced):
+            if isinstance(marked, (Produced, Kept)):
                 return marked
             if marked.path not in contents:
                 data = Path(marked.path).read_bytes()

@@ -123,13 +123,21 @@ def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, m
     from aril_ros.report.artifacts import Artifacts
 
     seen = []
-    monkeypatch.setattr(dagger, "train_learner", lambda cfg, log: seen.append(cfg) or cfg.out)
+
+    def train(cfg, log):  # stands in for training: its run directory as a real one leaves it, and the file
+        seen.append(cfg)
+        Path(cfg.run_dir).mkdir(parents=True)
+        (Path(cfg.run_dir) / "data.npz").write_bytes(b"the aggregated data set")
+        return cfg.out
+
+    monkeypatch.setattr(dagger, "train_learner", train)
     store = Artifacts(tmp_path, workers=1, address="", adversary_steps=1000, log=quiet)  # in this process: training is patched
     out = store.policies([("aril", "Swimmer-v5", "physical", 2)])[("aril", "Swimmer-v5", "physical", 2)]
     bundled = load_weights(bundled_file("aril", "Swimmer-v5", "physical"))[0]["provenance"]
     cfg = seen[0]
     assert out == tmp_path / "policies" / "aril-Swimmer-v5-physical-seed2.pt" and cfg.seed == 2
     assert cfg.run_dir == str(tmp_path / "learners" / "aril-Swimmer-v5-physical-seed2")
+    assert not Path(cfg.run_dir).exists()  # served resuming; the finished file's provenance has its rounds
     for key, value in bundled["settings"].items():  # read back from the settings, not re-parsed from the command
         if key not in ("seed", "out", "run_dir"):
             assert getattr(cfg, key) == value, key
@@ -150,6 +158,8 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
         def train(cfg, log):
             written.append(Path(cfg.out).name)
             name = "gail" if algorithm == "gail" else cfg.algorithm
+            if algorithm == "learner":  # a learner's training leaves its run directory
+                Path(cfg.run_dir).mkdir(parents=True)
             Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
             return cfg.out
@@ -172,6 +182,7 @@ def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch)
     assert sorted(p.name for p in (tmp_path / "work" / "policies").iterdir()) == [
         "aril-Swimmer-v5-physical-seed1.pt", "dagger-Swimmer-v5-seed1.pt", "dart-Swimmer-v5-seed1.pt",
         "dr-Swimmer-v5-physical-seed1.pt", "gail-Swimmer-v5-seed1.pt"]
+    assert not list((tmp_path / "work" / "learners").iterdir())  # run directories go when their training ends
 
 
 def test_the_performance_step_finds_benchmarks_by_entry_point_not_by_path(monkeypatch):

@@ -9,7 +9,7 @@ import pytest
 from aril_ros.provenance import cpu
 from aril_ros.registry import adversary_path, bundled_file
 from aril_ros.report.jobs import FAILURES, evaluated_on, run_jobs
-from aril_ros.sweep import RAY, Produced, Shipped, connect, ensure_ray, run_tasks
+from aril_ros.sweep import RAY, Kept, Produced, Shipped, connect, ensure_ray, kept_folder, run_tasks
 
 
 def quiet(*args, **kwargs):
@@ -77,6 +77,33 @@ def test_a_task_sees_relative_paths_as_the_driver_gave_them(two_nodes, tmp_path,
     _, seen_source, seen_out = results[0]
     assert (seen_source, seen_out) == ("in.txt", "made/out.txt")
     assert Path("made/out.txt").read_text() == "POLICY BYTES"
+
+
+def count_then_fail(folder: Path, fail: bool) -> tuple[str, int]:
+    """A training that keeps one round per call in ``folder`` and is cut off when ``fail``: the path it was
+    given and the rounds finished by now."""
+    rounds = len(list(folder.glob("round-*"))) + 1
+    (folder / f"round-{rounds}").write_text("done")
+    if fail:
+        raise RuntimeError("interrupted")
+    return str(folder), rounds
+
+
+def test_a_kept_folder_outlives_its_task_so_the_same_call_resumes(two_nodes, tmp_path, monkeypatch):
+    """A training's run directory (``Kept``): on the driver's machine, the driver's folder, reached through the
+    path the call gave (so provenance records no scratch path), still there after the task failed."""
+    monkeypatch.chdir(tmp_path)
+    call = (Kept(Path("learners/aril-seed1")),)
+    first = dict(run_tasks(count_then_fail, [(*call, True)], address=two_nodes.address, failures=(RuntimeError,),
+                           log=quiet))
+    assert isinstance(first[0], RuntimeError) and (tmp_path / "learners/aril-seed1/round-1").exists()
+    again = dict(run_tasks(count_then_fail, [(*call, False)], address=two_nodes.address, log=quiet))
+    assert again[0] == ("learners/aril-seed1", 2)  # resumed after round 1, seen by the relative path given
+    # on a node of another machine: a folder of that node's, the same for the same call, never the driver's path
+    elsewhere = Kept(Path("learners/aril-seed1"), host="another-node")
+    assert kept_folder(elsewhere) == kept_folder(Kept(Path("learners/aril-seed1"), host="another-node"))
+    assert not kept_folder(elsewhere).is_relative_to(tmp_path)
+    assert kept_folder(call[0]) == tmp_path / "learners/aril-seed1"
 
 
 def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_nodes, tmp_path):

@@ -12,8 +12,9 @@ What it runs, in order (:func:`build_report`), and the room of this package that
    bundled policy (``aril_ros/data/<defense>/``) and the bundled ARIL-A trained against it
    (``registry.adversary_path``); other seeds are trained here by the bundled policy's own settings (its
    provenance) with ``seed`` changed, then an ARIL-A against each, into ``<work_dir>/``, ``workers``
-   trainings side by side (each on one thread; a finished file is kept, so an interrupted run resumes).
-   A missing or failed one makes its cells say why.
+   trainings side by side (each on one thread; a finished file is kept, so an interrupted run resumes, and a
+   learner's training keeps its finished rounds in ``<work_dir>/learners/<name>/`` until it finishes, so an
+   interrupted ARIL resumes after its last round). A missing or failed one makes its cells say why.
 3. **Evaluations** (``jobs``), ``workers`` at a time in spawned processes: every policy clean and under
    random, FGSM, FGSM^k, SPSA^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks
    at multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps), episodes from

@@ -4,6 +4,7 @@ here by the bundled policy's own settings (its provenance) with ``seed`` changed
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 from .. import dagger, gail
@@ -12,7 +13,7 @@ from ..args import command_line
 from ..policy import load_weights
 from ..provenance import settings_of
 from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file
-from ..sweep import Produced, Shipped, run_tasks
+from ..sweep import Kept, Produced, Shipped, run_tasks
 from .jobs import FAILURES
 
 
@@ -32,7 +33,11 @@ def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir:
     cfg = settings_of(provenance, dagger.LearnerConfig, seed=seed, out=str(out), run_dir=str(run_dir), workers=1,
                       address="")
     print(f"[report] training {out.stem}: {command_line('aril train-learner', cfg)}", flush=True)
-    return Path(dagger.train_learner(cfg, log=print))
+    trained = Path(dagger.train_learner(cfg, log=print))
+    # the run directory served resuming an interrupted training (ARIL's last for hours on one CPU); the finished
+    # file's provenance has its rounds, and the directory is large (the aggregated data set: tens of MB)
+    shutil.rmtree(Path(run_dir).resolve())  # as a task, the path is a link to the kept folder (sweep.Kept)
+    return trained
 
 
 def train_seed_adversary(env: str, mode: str, policy: Path, eps: float, steps: int, out: Path) -> Path:
@@ -84,7 +89,7 @@ class Artifacts:
             name = f"{defense}-{env}{f'-{mode}' if defense in PER_MODE_POLICIES else ''}-seed{seed}"
             out = self.work / "policies" / f"{name}.pt"
             wanted[(defense, env, mode, seed)] = out
-            calls.setdefault(out, (defense, env, mode, seed, Produced(out), self.work / "learners" / name))
+            calls.setdefault(out, (defense, env, mode, seed, Produced(out), Kept(self.work / "learners" / name)))
         return self._prepare("policy", wanted, train_seed, calls)
 
     def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
