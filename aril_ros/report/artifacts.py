@@ -17,7 +17,7 @@ from ..sweep import Kept, Produced, Shipped, run_tasks
 from .jobs import FAILURES
 
 
-def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir: Path) -> Path:
+def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir: Path | None) -> Path:
     """Seed ``seed`` of a defense: the bundled policy's own settings with ``seed`` (and where it goes) changed."""
     provenance = load_weights(bundled_file(defense, env, mode))[0]["provenance"]
     if defense == "gail":
@@ -89,7 +89,8 @@ class Artifacts:
             name = f"{defense}-{env}{f'-{mode}' if defense in PER_MODE_POLICIES else ''}-seed{seed}"
             out = self.work / "policies" / f"{name}.pt"
             wanted[(defense, env, mode, seed)] = out
-            calls.setdefault(out, (defense, env, mode, seed, Produced(out), Kept(self.work / "learners" / name)))
+            run_dir = None if defense == "gail" else Kept(self.work / "learners" / name)  # GAIL keeps no rounds
+            calls.setdefault(out, (defense, env, mode, seed, Produced(out), run_dir))
         return self._prepare("policy", wanted, train_seed, calls)
 
     def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
