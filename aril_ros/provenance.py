@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import platform
 import subprocess
 from importlib import metadata
@@ -38,6 +39,7 @@ def versions() -> dict:
     return {**{name: metadata.version(name) for name in ("mujoco", "gymnasium", "numpy", "torch")}, "cpu": cpu()}
 
 
+@functools.cache  # a process stays on its CPU; every evaluation task and every stamp asks
 def cpu() -> str:
     """The CPU model and the instruction set torch's kernels use on it, e.g. ``AMD EPYC (AVX512)``."""
     import torch  # here, not at the top: most readers of a provenance never run a policy
