@@ -96,6 +96,10 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
                         if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
     assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
     assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
+    # the cache is committed (benchmarks/scripts/full-protocol.sh): bundled files by their path in the checkout
+    cached_policies = {json.loads(f.read_text())["job"]["policy"] for f in (tmp_path / "work" / "cache").glob("*.json")}
+    assert "aril_ros/data/dagger/Swimmer-v5.pt" in cached_policies
+    assert not any(Path(p).is_absolute() and not p.startswith(str(tmp_path)) for p in cached_policies)
     # the CPU the evaluations ran on (another model gives other returns from the same files)
     assert payload["evaluated_on"] == {cpu(): 80} and f"; evaluated on {cpu()} (another MuJoCo" in text
     # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance

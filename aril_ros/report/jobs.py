@@ -16,7 +16,7 @@ from .. import seeds
 from ..evaluation import evaluation_task, shipped_job
 from ..files import write_atomically
 from ..policy import PolicyFileError
-from ..provenance import cpu
+from ..provenance import cpu, portable
 from ..registry import THREATS
 from ..sweep import run_tasks
 
@@ -104,7 +104,8 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
     for n, (index, result) in enumerate(run_tasks(_evaluate_job, calls, workers, address, label="evaluations",
                                                   log=log), 1):
         key = todo_keys[index]
-        job, done[key] = todo[key], {"job": todo[key], **result}
+        # the job as committed caches keep it: files inside the checkout by their relative path, as anywhere
+        job, done[key] = todo[key], {"job": {k: portable(v) for k, v in todo[key].items()}, **result}
         # whole or not at all: a cache committed while a report runs (benchmarks/scripts/full-protocol.sh) is read
         write_atomically(cache / f"{key}.json", lambda partial: partial.write_text(json.dumps(done[key])))
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
