@@ -182,7 +182,8 @@ def ready_adversaries(wanted: list[AdversaryConfig], retrain: bool, log, workers
     """Each ``wanted`` adversary's file (its ``out``), trained first as :func:`ready_adversary` says; those to train
     run as sweep tasks, ``workers`` CPUs of a local Ray or the cluster at ``address`` (one worker: one after the
     other in this process, logging to ``log``). Their victim, expert and init files travel with them, and a task
-    records a file by the path it saw: a relative path or a bundled name reads the same on every node."""
+    records a file by the path it saw: a relative path or a bundled name reads the same on every node, and a file
+    inside the checkout is shown to it by its checkout-relative path (:func:`sweep.run_tasks`)."""
     todo = [cfg for cfg in wanted if retrain or not trained_for(Path(cfg.out), cfg.eps, cfg.victim, cfg.env, cfg.mode)]
     here = workers == 1 and not address
     calls = [(_with_files_marked(cfg), log if here else None) for cfg in todo]

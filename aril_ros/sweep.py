@@ -8,11 +8,13 @@ Each call is one task declaring one CPU (``cpus``). Nothing is shared through a 
 is marked :class:`Shipped` in its call and travels by content (put once per digest in Ray's object store, written
 on the worker's node under its digest, so a node holds each file once), and a file a task makes is marked
 :class:`Produced`: the task writes it on its node and its bytes travel back to the driver, which writes them where
-the call said. A folder a task keeps its progress in across interruptions (a training's run directory) is marked
-:class:`Kept`: the driver's own folder when the task runs on the driver's machine. Results come back to the driver as
-they finish; the caller keeps them (the report's cache), so
-killing the driver and running the same command again reruns only what had not finished. Ray is an extra
-(``pip install -e .[cluster]``, ``ray==2.60``): the sweeps install it on first use, the quick start never does.
+the call said. A file inside the checkout is shown to its task by its checkout-relative path, so that what the task
+records of it (a trained file's provenance) reads as one process records it. A folder a task keeps its progress
+in across interruptions (a training's run directory) is marked :class:`Kept`: the driver's own folder when the
+task runs on the driver's machine. Results come back to the driver as they finish; the caller keeps them (the
+report's cache), so killing the driver and running the same command again reruns only what had not finished.
+Ray is an extra (``pip install -e .[cluster]``, ``ray==2.60``): the sweeps install it on first use, the quick
+start never does.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .files import write_atomically
+from .provenance import portable
 
 RAY = "ray==2.60.*"
 """What the ``cluster`` extra of pyproject.toml installs (kept equal to it)."""
@@ -254,18 +257,26 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
         progress.parallel = int(ray.cluster_resources().get("CPU", workers) // cpus)
         contents: dict[Path, _Content] = {}
 
-        def ship(marked):
-            if isinstance(marked, (Produced, Kept)):
+        def ship(marked, destinations):
+            # a file inside the checkout is shown to the task by its checkout-relative path (and sits at that path
+            # in its scratch folder), so what the task records of it reads as it would on the driver, where
+            # provenance.stamp makes such paths relative; ``destinations`` maps it back to the driver's path
+            if isinstance(marked, Kept):
                 return marked
+            shown = Path(portable(str(marked.path)))
+            if shown != Path(marked.path):
+                destinations[str(shown)] = Path(marked.path)
+            if isinstance(marked, Produced):
+                return Produced(shown)
             if marked.path not in contents:
                 data = Path(marked.path).read_bytes()
-                contents[marked.path] = _Content(Path(marked.path), digest_of(data), ray.put(data))
+                contents[marked.path] = _Content(shown, digest_of(data), ray.put(data))
             return contents[marked.path]
 
         remote = ray.remote(num_cpus=cpus, max_retries=0)(_task)
-        pending = {}
+        pending, destinations = {}, [{} for _ in calls]
         for index, call in enumerate(calls):
-            pending[remote.remote(fn, _map(call, ship))] = index
+            pending[remote.remote(fn, _map(call, lambda marked: ship(marked, destinations[index])))] = index
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             index = pending.pop(ready[0])
@@ -278,11 +289,14 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
                 progress.finished(False)
                 yield index, cause
                 continue
-            for original, data in produced.items():
-                Path(original).parent.mkdir(parents=True, exist_ok=True)
+            back = destinations[index]
+            for shown, data in produced.items():
+                original = back.get(shown, Path(shown))
+                original.parent.mkdir(parents=True, exist_ok=True)
                 write_atomically(original, lambda partial: partial.write_bytes(data))
             progress.finished(True)
-            yield index, result
+            yield index, _map(result, lambda v: type(v)(back[str(v)]), lambda v: isinstance(v, (str, Path))
+                              and str(v) in back)
     finally:
         if started:
             ray.shutdown()

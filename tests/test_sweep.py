@@ -79,6 +79,31 @@ def test_a_task_sees_relative_paths_as_the_driver_gave_them(two_nodes, tmp_path,
     assert Path("made/out.txt").read_text() == "POLICY BYTES"
 
 
+def records_its_paths(source: Path, out: Path) -> Path:
+    """A task writing, into the file it makes, the paths it was given for its files (as a trained file's
+    provenance does)."""
+    out.write_text(f"{source} {out}")
+    return out
+
+
+def test_a_task_sees_files_inside_the_checkout_by_their_checkout_relative_path(two_nodes, tmp_path, monkeypatch):
+    """A bundled file is named by its absolute path (aril defense-table hands the trainer one): the file the task
+    makes must record it as provenance.stamp does in one process, not as a worker's scratch path, and still land
+    at the driver's absolute path, wherever the driver runs from."""
+    import aril_ros.provenance
+
+    checkout = tmp_path / "checkout"
+    monkeypatch.setattr(aril_ros.provenance, "CHECKOUT", checkout)
+    (checkout / "data").mkdir(parents=True)
+    (checkout / "data" / "victim.pt").write_text("victim bytes")
+    monkeypatch.chdir(tmp_path)  # not the checkout
+    call = (Shipped(checkout / "data" / "victim.pt"), Produced(checkout / "data" / "made" / "adversary.pt"))
+    results = dict(run_tasks(records_its_paths, [call], address=two_nodes.address, log=quiet))
+    assert results[0] == checkout / "data" / "made" / "adversary.pt"  # a result naming a made file names the driver's
+    assert results[0].read_text() == "data/victim.pt data/made/adversary.pt"
+    assert not (tmp_path / "data").exists()  # written where the driver named it, not relative to its working folder
+
+
 def count_then_fail(folder: Path, fail: bool) -> tuple[str, int]:
     """A training that keeps one round per call in ``folder`` and is cut off when ``fail``: the path it was
     given and the rounds finished by now."""
