@@ -10,6 +10,7 @@ from aril_ros.registry import THREATS, bundled_file
 from aril_ros.report import ReportConfig, build_report
 from aril_ros.report.stats import summarise, t95, worst_attack
 from aril_ros.report.tables import table_markdown
+from aril_ros.report.text import _budgets
 
 
 def quiet(*args, **kwargs):
@@ -204,3 +205,14 @@ def test_the_performance_step_finds_benchmarks_by_entry_point_not_by_path(monkey
     monkeypatch.setattr(perf, "run_benchmark", lambda name, args: ran.append((name, args)) or {})
     assert list(perf.run_benchmarks(1000, quiet, env="Swimmer-v5")) == ["engine", "graph", "adversary", "soak", "extra"]
     assert ran[0] == ("engine", ["env:=Swimmer-v5", "steps:=1000"]) and ran[-1] == ("extra", [])
+
+
+def test_the_text_names_each_round_adversary_budget_once_with_its_runs():
+    """Every seed of a run shares its settings: the comparison names a budget once, with the runs (env and mode)."""
+    warm = {"adversary_steps": 500_000, "warm_start": True, "adversary_seeds": 1}
+    fresh = {"adversary_steps": 1_000_000, "warm_start": False, "adversary_seeds": 3}
+    curves = {"Ant-v5 sensory seed 0": warm, "Ant-v5 sensory seed 1": warm, "Ant-v5 physical seed 0": warm,
+              "Swimmer-v5 physical seed 0": fresh}
+    assert _budgets(curves) == ("500,000 steps per round, warm-started from the previous round's adversary: "
+                                "Ant-v5 sensory, Ant-v5 physical; 1,000,000 steps per round, fresh each round, "
+                                "the strongest of 3: Swimmer-v5 physical")

@@ -75,9 +75,8 @@ def comparison(payload: dict, cells: dict) -> list[str]:
               + (". Ant's contact-force entries and termination rules differ, so Ant's figures carry the least "
                  "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls)."
                  if "Ant-v5" in envs else "."),
-              "- *ARIL's adversary budget.* " + _list([f"{name}: {_round_adversaries(c)}"
-                                                        for name, c in payload["aril_rounds"].items()])
-              + ". The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. A "
+              "- *ARIL's adversary budget.* " + _budgets(payload["aril_rounds"])
+              + " (each run's under ARIL's rounds, below). The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. A "
                 "round adversary weaker than that lets the learner beat each f_t and stay fragile against a stronger "
                 "one; warm-starting each round's adversary from the last, or keeping the strongest of several fresh "
                 "ones, keeps up (`results/aril_a_tuning.md`). The paper does not give its per-round budget.",
@@ -88,6 +87,15 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                                     "One training seed (the quick budget): the intervals cover episode noise only, "
                                     "not seed-to-seed variation; `budget:=full` trains 3 seeds per defense."), ""]
     return lines
+
+
+def _budgets(curves: dict) -> str:
+    """Each way ARIL's runs made their round adversaries, followed by the runs that did (by env and mode: a run's
+    seeds share its settings, and naming each of them would repeat the table of rounds)."""
+    runs = {}
+    for name, curve in curves.items():
+        runs.setdefault(_round_adversaries(curve), {})[name.split(" seed ")[0]] = None
+    return "; ".join(f"{budget}: {_list(list(names))}" for budget, names in runs.items()) or "none"
 
 
 def _round_adversaries(curve: dict) -> str:
