@@ -76,10 +76,11 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                  "comparison weight (its clean DAgger return also has the widest spread: episodes where it falls)."
                  if "Ant-v5" in envs else "."),
               "- *ARIL's adversary budget.* " + _budgets(payload["aril_rounds"])
-              + " (each run's under ARIL's rounds, below). The evaluation's ARIL-A against the finished learner trains for 1,000,000 steps from scratch. A "
-                "round adversary weaker than that lets the learner beat each f_t and stay fragile against a stronger "
-                "one; warm-starting each round's adversary from the last, or keeping the strongest of several fresh "
-                "ones, keeps up (`results/aril_a_tuning.md`). The paper does not give its per-round budget.",
+              + " (each run's under ARIL's rounds, below). The evaluation's ARIL-A against the finished learner "
+                "trains for 1,000,000 steps from scratch. A round adversary weaker than that lets the learner beat "
+                "each f_t and stay fragile against a stronger one; warm-starting each round's adversary from the "
+                "last, or keeping the strongest of several fresh ones, keeps up (`results/aril_a_tuning.md`). The "
+                "paper does not give its per-round budget.",
               "- *Statistics.* " + (f"{len(payload['seeds'])} training seeds per defense: the intervals are over the "
                                     "seeds' means (Student-t), so they bound seed-to-seed variation and are wide with "
                                     "this few seeds; each seed's episodes are in the JSON."
