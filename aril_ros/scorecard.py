@@ -54,8 +54,9 @@ from pathlib import Path
 from . import plugins, seeds
 from .adversary import load_adversary, ready_adversary
 from .args import arg, comma_list
-from .cell_runner import GRAPH_RUN_CPUS, Cell, run_cells
+from .cell_runner import GRAPH_RUN_CPUS, CellRunner
 from .envs import HORIZON
+from .evaluation import EvalConfig
 from .policy import resolve_policy
 from .protocol import checked_domain, ros_domain
 from .provenance import stamp
@@ -145,15 +146,17 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
     out.mkdir(parents=True, exist_ok=True)
     eps = {mode: cfg.eps or calibrated_eps(cfg.env, mode) for mode in modes}
+    runner = runner_of(cfg, out)
     with nullcontext() if cfg.policy == "external" else session(cfg.workers, cfg.address):
         # the clean cell first (the same episodes as every other cell): an external node that waits for the run's
         # listeners before it subscribes (msgs_doc's) is then subscribed when ARIL-A's training asks it alone
-        [clean] = run_cells([Cell("clean", "none", 0.0)], cfg, budget, via_of(cfg), out, log, "scorecard clean cell")
+        [clean] = runner.run([cell(cfg, budget, "clean", "none", 0.0)], log, "scorecard clean cell")
         adversaries = {mode: adversary_for(cfg, mode, eps[mode], budget, out / f"adversary-{mode}.pt", log)
                        for mode in modes} if "aril_a" in attacks else {}
-        plan = [Cell(mode, attack, scale * eps[mode], str(adversaries[mode]) if attack == "aril_a" else "")
+        plan = [cell(cfg, budget, mode, attack, scale * eps[mode],
+                     str(adversaries[mode]) if attack == "aril_a" else "")
                 for mode in modes for attack in attacks for scale in scales]
-        cells = iter(run_cells(plan, cfg, budget, via_of(cfg), out, log))
+        cells = iter(runner.run(plan, log))
     results = {}
     for mode in modes:
         mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in attacks}
@@ -205,6 +208,26 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
         raise ValueError(f"scales:={cfg.scales}: positive multiples of eps, 1 among them (the worst case is judged at "
                          "eps)")
     return budget, modes, attacks, scales
+
+
+def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str = "") -> EvalConfig:
+    """A cell of the plan: the policy's episodes in ``mode`` under ``attack`` at ``eps``, ARIL-A's ``adversary``
+    scaled to that eps (its perturbation times eps / its own eps), SPSA^k at the budget's queries (the other attacks
+    keep their own settings: fgsm_k's k is not SPSA's)."""
+    spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
+    return EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
+                      attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
+                      horizon=cfg.horizon, **spsa)
+
+
+def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:
+    """Where the cells run: a file's or a bundled name's as sweep tasks of ``workers`` or on the cluster at
+    ``address`` (through the graph each run in a free domain of its node); an external node's one after the other
+    here, in the node's domain."""
+    logs = out / "logs" if cfg.keep_logs else None
+    if cfg.policy == "external":
+        return CellRunner(via_of(cfg), workers=1, address="", domain=cfg.domain, logs=logs)
+    return CellRunner(via_of(cfg), workers=cfg.workers, address=cfg.address, logs=logs)
 
 
 def adversary_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
