@@ -13,7 +13,7 @@ calibrated one for the env and mode unless ``eps:=`` sets it.
 A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
 ``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings; with ``via:=graph`` each
 cell is instead a run of the ROS 2 graph with a policy node serving the file (the verdict through the nodes a robot
-runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`GRAPH_RUN_CPUS` CPUs
+runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`~aril_ros.cell_runner.GRAPH_RUN_CPUS` CPUs
 on its node, in a ROS domain of its own there, its log coming back with ``keep_logs:=true``. ``policy:=external``
 scores a ROS 2 policy node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
 your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
@@ -36,28 +36,27 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
 
 A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
 evaluations at most.
+
+This module is the plan: the arguments, the cells (mode, attack, eps) and the adversaries they need, and the
+worst case of each mode. :mod:`aril_ros.cell_runner` runs the cells (the sweep's progress lines give the ETA);
+:mod:`aril_ros.report` renders them: the paired drops (``report.stats``), the page (``report.text``) and the
+figures (``report.plots``).
 """
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
-import tempfile
-import time
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from . import plugins, seeds
 from .adversary import load_adversary, ready_adversary
 from .args import arg, comma_list
-from .dagger import RoundSpec
+from .cell_runner import GRAPH_RUN_CPUS, CellRunner
 from .envs import HORIZON
-from .evaluation import EvalConfig, evaluate, shipped_job
-from .mcap_log import read_run
+from .evaluation import EvalConfig
 from .policy import resolve_policy
 from .protocol import checked_domain, ros_domain
 from .provenance import stamp
@@ -71,9 +70,10 @@ from .registry import (
     calibrated_eps,
     check_name,
 )
-from .report.stats import t95, worst_attack
-from .step import EpisodeStats, episode_stats, summarise_episodes
-from .sweep import Produced, run_tasks, session
+from .report.plots import plot_scorecard_sweep
+from .report.stats import paired_drop, worst_attack
+from .report.text import scorecard_markdown
+from .sweep import session
 
 
 @dataclass(frozen=True)
@@ -105,9 +105,6 @@ SCALES = "0.25,0.5,1,2"
 SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 VIAS = ("engine", "graph")
-GRAPH_RUN_CPUS = 2
-"""What a graph run (a cell through the graph) declares as a sweep task: its five processes work in lockstep, about
-4.5 ms of CPU per step at 420 steps/s here, i.e. two cores busy (issue 16's profile)."""
 
 
 @dataclass
@@ -148,29 +145,31 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     budget, modes, attacks, scales = check_config(cfg)
     out = Path(cfg.out or f"runs/scorecard-{cfg.env}-{Path(cfg.policy).stem}")
     out.mkdir(parents=True, exist_ok=True)
-    clock = Progress(1 + len(modes) * len(attacks) * len(scales), len(modes) if "aril_a" in attacks else 0, log)
     eps = {mode: cfg.eps or calibrated_eps(cfg.env, mode) for mode in modes}
-    plan = [(mode, attack, scale * eps[mode]) for mode in modes for attack in attacks for scale in scales]
+    runner = runner_of(cfg, out)
     with nullcontext() if cfg.policy == "external" else session(cfg.workers, cfg.address):
         # the clean cell first (the same episodes as every other cell): an external node that waits for the run's
         # listeners before it subscribes (msgs_doc's) is then subscribed when ARIL-A's training asks it alone
-        [clean] = run_cells(cfg, budget, [("clean", "none", 0.0)], {}, clock, out)
-        adversaries = {mode: clock.training(lambda mode=mode: adversary_for(cfg, mode, eps[mode], budget,
-                                                                            out / f"adversary-{mode}.pt", log))
+        [clean] = runner.run([cell(cfg, budget, "clean", "none", 0.0)], log, "scorecard clean cell")
+        adversaries = {mode: adversary_for(cfg, mode, eps[mode], budget, out / f"adversary-{mode}.pt", log)
                        for mode in modes} if "aril_a" in attacks else {}
-        cells = iter(run_cells(cfg, budget, plan, adversaries, clock, out))
+        plan = [cell(cfg, budget, mode, attack, scale * eps[mode],
+                     str(adversaries[mode]) if attack == "aril_a" else "")
+                for mode in modes for attack in attacks for scale in scales]
+        cells = iter(runner.run(plan, log))
     results = {}
     for mode in modes:
         mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in attacks}
         results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
                          "adversary": str(adversaries.get(mode)), "clean": clean, "attacks": mode_cells,
                          "worst": worst_case(clean, mode_cells)}
-        plot_sweep(results[mode], cfg, mode, scales, out / f"sweep-{mode}.png")
+        plot_scorecard_sweep(results[mode], scales, f"{cfg.policy} on {cfg.env}, {mode}", out / f"sweep-{mode}.png")
     payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
                "scales": scales, "modes": results}
     (out / "scorecard.json").write_text(json.dumps(payload, indent=1) + "\n")
     page = out / "scorecard.md"
-    page.write_text(markdown(payload, cfg))
+    page.write_text(scorecard_markdown(payload, cfg.policy, f"{cfg.budget}: {budget.describe()}",
+                                       via_of(cfg) == "graph"))
     log(f"[scorecard] {page}: " + "; ".join(
         f"{mode} worst {ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%" for mode, r in results.items()))
     return page
@@ -211,6 +210,26 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
     return budget, modes, attacks, scales
 
 
+def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str = "") -> EvalConfig:
+    """A cell of the plan: the policy's episodes in ``mode`` under ``attack`` at ``eps``, ARIL-A's ``adversary``
+    scaled to that eps (its perturbation times eps / its own eps), SPSA^k at the budget's queries (the other attacks
+    keep their own settings: fgsm_k's k is not SPSA's)."""
+    spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
+    return EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
+                      attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
+                      horizon=cfg.horizon, **spsa)
+
+
+def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:
+    """Where the cells run: a file's or a bundled name's as sweep tasks of ``workers`` or on the cluster at
+    ``address`` (through the graph each run in a free domain of its node); an external node's one after the other
+    here, in the node's domain."""
+    logs = out / "logs" if cfg.keep_logs else None
+    if cfg.policy == "external":
+        return CellRunner(via_of(cfg), workers=1, address="", domain=cfg.domain, logs=logs)
+    return CellRunner(via_of(cfg), workers=cfg.workers, address=cfg.address, logs=logs)
+
+
 def adversary_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
     """ARIL-A trained against the policy in ``mode`` at ``eps``: the one at ``path`` when it was trained for the
     same policy, eps and at least the budget's steps, else trained now (the longest part of a scorecard)."""
@@ -240,184 +259,7 @@ def victim_of(policy: str, env_id: str, mode: str) -> str:
     return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
 
 
-def run_cells(cfg: ScorecardConfig, budget: Budget, plan: list[tuple[str, str, float]], adversaries: dict,
-              clock: Progress, out: Path) -> list[dict]:
-    """Every cell of ``plan`` (mode, attack, eps), in its order, as sweep tasks: on the engine, or as runs of the graph
-    (an external node's one after the other in this process, in its domain); their time on the clock is since the cell
-    before, so the ETA is the pace of all the workers. ARIL-A runs at its own eps when ``eps`` is, and scaled to
-    ``eps`` otherwise (its perturbation times eps / its eps)."""
-    files = [str(adversaries[mode]) if attack == "aril_a" else "" for mode, attack, _ in plan]
-    if via_of(cfg) == "graph":
-        calls = [(graph_spec(cfg, budget, mode, attack, eps, file, out),) for (mode, attack, eps), file in zip(plan, files)]
-        external = cfg.policy == "external"
-        tasks = run_tasks(graph_cell, calls, 1 if external else cfg.workers, "" if external else cfg.address,
-                          cpus=GRAPH_RUN_CPUS, log=lambda *args, **kwargs: None)  # the clock says how far it is
-    else:
-        jobs = [dataclasses.asdict(EvalConfig(
-            env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps, attack_file=file,
-            rescale=bool(file), episodes=budget.episodes, seed=cfg.seed, horizon=cfg.horizon,
-            **spsa_settings(attack, budget))) for (mode, attack, eps), file in zip(plan, files)]
-        tasks = run_tasks(engine_episodes, [(shipped_job(job),) for job in jobs], cfg.workers, cfg.address,
-                          log=lambda *args, **kwargs: None)
-    cells: list[dict] = [{}] * len(plan)
-    last = time.monotonic()
-    for index, episodes in tasks:
-        cells[index] = cell_of(cfg, plan[index][2], episodes)
-        now = time.monotonic()
-        clock.done(cell_text(plan[index], cells[index]), now - last)
-        last = now
-    return cells
-
-
-def cell_text(spec: tuple[str, str, float], cell: dict) -> str:
-    mode, attack, eps = spec
-    return f"{mode} {ATTACKS[attack]} eps {eps:g}: return {cell['mean_return']:.1f}"
-
-
-def cell_of(cfg: ScorecardConfig, eps: float, episodes: list[EpisodeStats]) -> dict:
-    """A cell: every episode's figures (in episode order) and their summary."""
-    episodes = sorted(episodes, key=lambda e: e.episode)
-    summary = summarise_episodes(episodes)
-    return {"eps": eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
-            "episodes": [{"episode": e.episode, "env_seed": cfg.seed + e.episode, "return": e.reward,
-                          "expert_loss": round(e.expert_loss, 6), "steps": e.steps,
-                          "max_abs_delta": round(e.max_delta, 6)} for e in episodes]}
-
-
-def engine_episodes(job: dict) -> list[EpisodeStats]:
-    """A cell on the engine (a sweep task): ``aril eval`` of ``job``, every episode's figures."""
-    episodes = []
-    evaluate(EvalConfig(**job), progress=episodes.append)
-    return episodes
-
-
-def graph_spec(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str,
-               out: Path) -> dict:
-    """A cell's graph run (:class:`aril_ros.dagger.RoundSpec`'s fields), its files marked to travel with its task: an
-    external node's in the node's domain, a file's in a free one of the task's node. The log is a file the task makes
-    with ``keep_logs``, else none (the task reads it back on its node)."""
-    return shipped_job({
-        "env": cfg.env, "mode": mode, "attack": attack, "eps": eps, "policy": cfg.policy, "expert": cfg.expert,
-        "attack_file": adversary, "episodes": budget.episodes, "seed": cfg.seed, "horizon": cfg.horizon,
-        "domain": cfg.domain if cfg.policy == "external" else "auto", "rescale": bool(adversary),
-        "record": Produced(out / "logs" / f"{mode}-{attack}-{eps:g}.mcap") if cfg.keep_logs else None,
-        **spsa_settings(attack, budget)})
-
-
-def graph_cell(spec: dict) -> list[EpisodeStats]:
-    """A cell as a run of the graph (a sweep task), every episode's figures read back from the run's log."""
-    spec = {k: str(v) if isinstance(v, Path) else v for k, v in spec.items()}  # a file's copy on the task's node
-    with tempfile.TemporaryDirectory(prefix="aril_scorecard-") as scratch:
-        record = Path(spec["record"] or Path(scratch) / "cell.mcap")
-        record.parent.mkdir(parents=True, exist_ok=True)
-        record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
-        logged = read_run(plugins.load("aril_ros.collectors", "graph")(RoundSpec(**{**spec, "record": record})))
-    return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
-
-
-def spsa_settings(attack: str, budget: Budget) -> dict:
-    """SPSA^k's iterations and directions from the budget (the other attacks keep their own: fgsm_k's k is not
-    SPSA's)."""
-    return {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
-
-
-def paired_drop(clean: dict, attacked: dict) -> dict:
-    """The drop from clean over the same episodes: mean, and a Student-t 95% interval of the per-episode
-    differences, in return and in % of the clean mean."""
-    clean_returns = np.array([e["return"] for e in clean["episodes"]])
-    diff = clean_returns - np.array([e["return"] for e in attacked["episodes"]])
-    half = t95(len(diff) - 1) * diff.std(ddof=1) / math.sqrt(len(diff)) if len(diff) > 1 else float("nan")
-    base = abs(clean_returns.mean()) or 1.0
-    mean = float(diff.mean())
-    return {"drop": mean, "ci95": float(half), "drop_pct": -100 * mean / base,
-            "ci95_pct": [-100 * (mean + half) / base, -100 * (mean - half) / base]}
-
-
 def worst_case(clean: dict, cells: dict) -> dict:
     """The attack with the lowest return at scale 1 (the tables' rule), with its paired drop."""
     attack = worst_attack({a: {"mean": sweep[1.0]["mean_return"]} for a, sweep in cells.items()}, among=tuple(cells))
     return {"attack": attack, "return": cells[attack][1.0]["mean_return"], **paired_drop(clean, cells[attack][1.0])}
-
-
-def markdown(payload: dict, cfg: ScorecardConfig) -> str:
-    budget = Budget(**{f.name: payload["budget"][f.name] for f in dataclasses.fields(Budget)})
-    lines = [f"# Scorecard: {cfg.policy} on {cfg.env}", "",
-             f"`{payload['command']}` (revision {payload['git_revision']}, {payload['created']}). Budget "
-             f"{cfg.budget}: {budget.describe()}; env seeds {cfg.seed}..{cfg.seed + budget.episodes - 1} in every "
-             f"cell (paired), each {'a run of the ROS 2 graph' if via_of(cfg) == 'graph' else 'on the engine'}, "
-             "ARIL-A trained against this policy. Drop: mean of the per-episode differences from clean, "
-             "in % of the clean return, with a Student-t 95% interval. Every episode is in `scorecard.json`.", ""]
-    for mode, r in payload["modes"].items():
-        worst = r["worst"]
-        lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
-                  f"**Worst case: {ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
-                  f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
-                  f"(clean {r['clean']['mean_return']:.1f}).", "",
-                  "| attack | return at eps | drop at eps [95%] | expert loss | return at " +
-                  ", ".join(f"{s:g}x" for s in payload["scales"]) + " eps |", "|---|---|---|---|---|",
-                  f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | |"]
-        for attack, sweep in r["attacks"].items():
-            at = sweep[1.0]
-            drop = paired_drop(r["clean"], at)
-            lines.append(f"| {ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
-                         f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
-                         + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in payload["scales"]) + " |")
-        lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
-    return "\n".join(lines)
-
-
-def plot_sweep(result: dict, cfg: ScorecardConfig, mode: str, scales: list[float], path: Path) -> None:
-    """Return against eps, one line per attack (mean and paired 95% interval), the clean return as a band."""
-    from .report.plots import _pyplot
-
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    clean = result["clean"]["mean_return"]
-    for attack, sweep in result["attacks"].items():
-        x = [sweep[s]["eps"] for s in scales]
-        y = np.array([sweep[s]["mean_return"] for s in scales])
-        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in scales])
-        ax.plot(x, y, marker="o", ms=3, label=ATTACKS[attack])
-        ax.fill_between(x, y - half, y + half, alpha=0.12)
-    ax.axhline(clean, color="black", lw=1, ls="--", label="clean")
-    ax.axvline(result["eps"], color="grey", lw=0.8, ls=":")
-    ax.set(xscale="log", xlabel="eps (dotted: the scorecard's)", ylabel="return",
-           title=f"{cfg.policy} on {cfg.env}, {mode}")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-class Progress:
-    """Evaluation cells done out of ``cells``, adversary trainings out of ``trainings``, and an ETA: the mean time of
-    a cell so far times the cells left, plus the mean time of a training times the trainings left (once one is done;
-    until then the ETA says a training is still to come)."""
-
-    def __init__(self, cells: int, trainings: int, log):
-        self.cells, self.trainings, self.log = cells, trainings, log
-        self.cell_times: list[float] = []
-        self.training_times: list[float] = []
-
-    def done(self, what: str, seconds: float) -> None:
-        self.cell_times.append(seconds)
-        self.log(f"[scorecard] cell {len(self.cell_times)}/{self.cells} {what} ({seconds:.0f} s); {self.eta()}",
-                 flush=True)
-
-    def training(self, train):
-        """``train()``, timed as one of the trainings."""
-        started = time.monotonic()
-        result = train()
-        self.training_times.append(time.monotonic() - started)
-        return result
-
-    def eta(self) -> str:
-        cells_left = self.cells - len(self.cell_times)
-        trainings_left = self.trainings - len(self.training_times)
-        seconds = np.mean(self.cell_times) * cells_left
-        if trainings_left and not self.training_times:
-            return f"left: ~{seconds / 60:.1f} min of evaluations and {trainings_left} ARIL-A training(s)"
-        if trainings_left:
-            seconds += np.mean(self.training_times) * trainings_left
-        return f"left: ~{seconds / 60:.1f} min"

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from aril_ros.evaluation import EvalConfig, evaluate
+from aril_ros.registry import ATTACKS
 from aril_ros.report.stats import t95
 from aril_ros.scorecard import SCORED_ATTACKS, ScorecardConfig, scorecard
 
@@ -56,7 +57,9 @@ def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_car
                                                           -100 * (diff.mean() - half) / base])
     text = page.read_text()
     assert f"{sensory['worst']['drop_pct']:+.1f}%" in text and "![return against eps, sensory](sweep-sensory.png)" in text
-    assert (out / "sweep-sensory.png").stat().st_size > 10_000 and (out / "adversary-sensory.pt").is_file()
+    png = (out / "sweep-sensory.png").read_bytes()
+    # a PNG of the figure's size: 6 x 3.6 in at 110 dpi
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and np.frombuffer(png[16:24], ">u4").tolist() == [660, 396]
 
 
 def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp_path):
@@ -65,8 +68,26 @@ def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp
     again, rerun = [], shutil.copytree(out, tmp_path / "card")  # the other tests read the first run's folder
     scorecard(dataclasses.replace(cfg, attacks="aril_a", scales="1", out=str(rerun)),
               log=lambda line, **_: again.append(line))
-    assert any("reusing" in line for line in again) and not any("training ARIL-A" in line for line in again)
-    assert sum("cell " in line for line in again) == 2  # clean and ARIL-A at eps
+    assert (rerun / "adversary-sensory.pt").read_bytes() == (out / "adversary-sensory.pt").read_bytes()
+    first, second = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"] for folder in (out, rerun))
+    assert second["clean"] == first["clean"]
+    assert second["attacks"] == {"aril_a": {"1.0": first["attacks"]["aril_a"]["1.0"]}}
+    # the cells ran as sweeps, whose progress is the scorecard's: the clean cell, then ARIL-A at eps alone
+    assert [line.split(",")[0] for line in again if line.startswith("[sweep] scorecard")] == [
+        "[sweep] scorecard clean cell: 1/1 done", "[sweep] scorecard cells: 1/1 done"]
+
+
+def test_the_page_quotes_each_attacks_paired_drop_at_eps(small_card):
+    """The page's rows are report.stats.paired_drop of the cells in scorecard.json (its one producer)."""
+    from aril_ros.report.stats import paired_drop
+
+    _, out, page, _ = small_card
+    sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in page.read_text().splitlines() if line.startswith("| ")}
+    for attack, sweep in sensory["attacks"].items():
+        drop = paired_drop(sensory["clean"], sweep["1.0"])
+        assert f"| {drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] |" in rows[
+            ATTACKS[attack]]
 
 
 @pytest.mark.parametrize("changes, message", [
@@ -134,7 +155,7 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     from ray.cluster_utils import Cluster
 
     from aril_ros.registry import bundled_file
-    from aril_ros.scorecard import GRAPH_RUN_CPUS
+    from aril_ros.cell_runner import GRAPH_RUN_CPUS
     from aril_ros.sweep import ensure_ray
 
     ensure_ray()
@@ -154,18 +175,3 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == [
         "clean-none-0.mcap", "sensory-fgsm-0.3.mcap", "sensory-fgsm-0.6.mcap"]
     assert "a run of the ROS 2 graph" in (tmp_path / "card" / "scorecard.md").read_text()
-
-
-def test_the_eta_counts_the_trainings_once_one_is_timed():
-    import time
-
-    from aril_ros.scorecard import Progress
-
-    lines = []
-    clock = Progress(cells=4, trainings=2, log=lambda line, **_: lines.append(line))
-    clock.done("clean", 60.0)
-    assert lines[-1].endswith("left: ~3.0 min of evaluations and 2 ARIL-A training(s)")
-    clock.training(lambda: time.sleep(0.3))
-    clock.done("random", 60.0)
-    eta = float(lines[-1].split("~")[1].split(" min")[0])
-    assert "cell 2/4" in lines[-1] and 2.0 <= eta <= 2.02  # two cells of 60 s and one training of 0.3 s left

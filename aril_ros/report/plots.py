@@ -1,5 +1,5 @@
 """The report's figures as PNG (matplotlib, imported only when a figure is drawn): return vs eps per
-defense and attack, and ARIL's clean and attacked return per round."""
+defense and attack, and ARIL's clean and attacked return per round; and a scorecard's return vs eps per attack."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..registry import ATTACKS, DEFENSES, PAPER_DEFENSES
-from .stats import summarise
+from .stats import paired_drop, summarise
 
 
 def _pyplot():
@@ -79,3 +79,25 @@ def plot_figures(evals: dict, curves: dict, envs: list[str], modes: list[str], s
         for env in envs:
             plot_sweeps(evals, env, mode, sweep_attacks, eps[env, mode], figures_dir / f"sweep-{env}-{mode}.png")
     plot_rounds(curves, envs, modes, figures_dir / "aril-rounds.png")
+
+
+def plot_scorecard_sweep(result: dict, scales: list[float], title: str, path: Path) -> None:
+    """A scorecard's mode (``aril_ros.scorecard``'s ``modes`` entry): return against eps, one line per attack (mean
+    and paired 95% interval), the clean return as a dashed line, the mode's eps dotted."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    clean = result["clean"]["mean_return"]
+    for attack, sweep in result["attacks"].items():
+        x = [sweep[s]["eps"] for s in scales]
+        y = np.array([sweep[s]["mean_return"] for s in scales])
+        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in scales])
+        ax.plot(x, y, marker="o", ms=3, label=ATTACKS[attack])
+        ax.fill_between(x, y - half, y + half, alpha=0.12)
+    ax.axhline(clean, color="black", lw=1, ls="--", label="clean")
+    ax.axvline(result["eps"], color="grey", lw=0.8, ls=":")
+    ax.set(xscale="log", xlabel="eps (dotted: the scorecard's)", ylabel="return", title=title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,6 +1,7 @@
 """The one producer of table cells: per-episode returns (grouped by training seed) in, a cell out;
-and the one rule for a defense's worst attack. ``aril attack-table`` / ``defense-table`` print a cell's
-mean ± std, ``aril report`` its mean ± ci95: the same cell either way."""
+the one rule for a defense's worst attack; and the paired drop of a scorecard's cell from its clean cell.
+``aril attack-table`` / ``defense-table`` print a cell's mean ± std, ``aril report`` its mean ± ci95: the same
+cell either way."""
 from __future__ import annotations
 
 import math
@@ -19,6 +20,11 @@ def t95(df: int) -> float:
     return T95[max(k for k in T95 if k <= max(df, 1))]
 
 
+def half_width(units: np.ndarray) -> float:
+    """Half-width of a Student-t 95% interval of the mean of ``units`` (nan for fewer than two)."""
+    return t95(len(units) - 1) * units.std(ddof=1) / math.sqrt(len(units)) if len(units) > 1 else float("nan")
+
+
 def summarise(per_seed: list[list[float]]) -> dict:
     """A table cell from the per-episode returns of each training seed: ``mean`` (of the seed means),
     ``std`` (over all episodes, as ``aril eval`` prints it), ``ci95`` (half-width of a Student-t 95%
@@ -26,7 +32,7 @@ def summarise(per_seed: list[list[float]]) -> dict:
     reader wants bounded, else over the episodes), ``median``, ``seeds``, ``episodes`` (per seed), ``ci_over``."""
     means = np.array([np.mean(r) for r in per_seed])
     units = means if len(per_seed) > 1 else np.asarray(per_seed[0], dtype=float)
-    half = t95(len(units) - 1) * units.std(ddof=1) / math.sqrt(len(units)) if len(units) > 1 else float("nan")
+    half = half_width(units)
     episodes = np.concatenate([np.asarray(r, dtype=float) for r in per_seed])
     return {"mean": float(means.mean()), "std": float(episodes.std()), "ci95": float(half),
             "median": float(np.median(episodes)), "seeds": len(per_seed), "episodes": len(per_seed[0]),
@@ -38,3 +44,16 @@ def worst_attack(cells: dict, among=THREATS) -> str | None:
     None when no cell of ``among`` is there."""
     present = [a for a in among if cells.get(a)]
     return min(present, key=lambda a: cells[a]["mean"]) if present else None
+
+
+def paired_drop(clean: dict, attacked: dict) -> dict:
+    """The drop of ``attacked`` from ``clean``, two cells of the same episodes (each a list of ``episodes`` with
+    their ``return``): mean, and a Student-t 95% interval of the per-episode differences, in return and in % of
+    the clean mean."""
+    clean_returns = np.array([e["return"] for e in clean["episodes"]])
+    diff = clean_returns - np.array([e["return"] for e in attacked["episodes"]])
+    half = half_width(diff)
+    base = abs(clean_returns.mean()) or 1.0
+    mean = float(diff.mean())
+    return {"drop": mean, "ci95": float(half), "drop_pct": -100 * mean / base,
+            "ci95_pct": [-100 * (mean + half) / base, -100 * (mean - half) / base]}

@@ -1,5 +1,6 @@
 """The markdown of ``docs/results.md``: built only from the figures ``aril report`` computed (its
-``report.json``), so regenerating the report regenerates every sentence that quotes a number."""
+``report.json``), so regenerating the report regenerates every sentence that quotes a number; and a scorecard's
+page, from its ``scorecard.json`` alike."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,7 @@ from ..envs import layout_of
 from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES
 from .compute import compute_lines
 from .paper import PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
-from .stats import worst_attack
+from .stats import paired_drop, worst_attack
 from .tables import DAGGER_ATTACKS
 
 
@@ -219,4 +220,34 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
     lines += ["", "Each file's provenance (training command, git revision, seeds) is inside it: "
                   "`python -c \"from aril_ros.policy import load_weights; print(load_weights('FILE')[0]"
                   "['provenance'])\"` (add `, 'adversary'` for an adversary).", ""]
+    return "\n".join(lines)
+
+
+def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool) -> str:
+    """A scorecard's page (``scorecard.md``) from what its ``scorecard.json`` holds (``card``, its scales and the
+    sweeps' keys floats), the policy as typed, the budget as a sentence, and whether its cells were runs of the
+    graph."""
+    settings, episodes = card["settings"], card["budget"]["episodes"]
+    lines = [f"# Scorecard: {policy} on {settings['env']}", "",
+             f"`{card['command']}` (revision {card['git_revision']}, {card['created']}). Budget {budget}; env seeds "
+             f"{settings['seed']}..{settings['seed'] + episodes - 1} in every cell (paired), each "
+             f"{'a run of the ROS 2 graph' if through_graph else 'on the engine'}, ARIL-A trained against this "
+             "policy. Drop: mean of the per-episode differences from clean, in % of the clean return, with a "
+             "Student-t 95% interval. Every episode is in `scorecard.json`.", ""]
+    for mode, r in card["modes"].items():
+        worst = r["worst"]
+        lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
+                  f"**Worst case: {ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
+                  f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
+                  f"(clean {r['clean']['mean_return']:.1f}).", "",
+                  "| attack | return at eps | drop at eps [95%] | expert loss | return at " +
+                  ", ".join(f"{s:g}x" for s in card["scales"]) + " eps |", "|---|---|---|---|---|",
+                  f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | |"]
+        for attack, sweep in r["attacks"].items():
+            at = sweep[1.0]
+            drop = paired_drop(r["clean"], at)
+            lines.append(f"| {ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
+                         f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
+                         + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in card["scales"]) + " |")
+        lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
     return "\n".join(lines)

@@ -1,0 +1,95 @@
+"""A scorecard's cells, run: each cell an ``aril eval`` (its :class:`~aril_ros.evaluation.EvalConfig`) on the
+engine, or the same episodes as a run of the ROS 2 graph, as a sweep task (:mod:`aril_ros.sweep`, whose progress
+lines give the ETA); every episode's figures come back.
+
+    CellRunner("engine", workers=2, address="").run(cells, log)   # [{"eps", "mean_return", "mean_expert_loss",
+                                                                   #   "episodes": [...]}, ...] in the cells' order
+
+On the engine a cell is a task of one CPU; through the graph a task of :data:`GRAPH_RUN_CPUS`, its run in a ROS
+domain of its own on the task's node, or in the domain given (an external node's, whose cells run one after the
+other in this process). A graph cell's log is ``<logs>/<mode>-<attack>-<eps>.mcap`` when ``logs`` is given, else a
+scratch file.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import plugins
+from .dagger import RoundSpec
+from .evaluation import EvalConfig, evaluate, shipped_job
+from .mcap_log import read_run
+from .registry import ATTACKS
+from .step import EpisodeStats, episode_stats, summarise_episodes
+from .sweep import Produced, run_tasks
+
+GRAPH_RUN_CPUS = 2
+"""What a graph run (a cell through the graph) declares as a sweep task: its five processes work in lockstep, about
+4.5 ms of CPU per step at 420 steps/s here, i.e. two cores busy (issue 16's profile)."""
+GRAPH_RUN_FIELDS = tuple(f.name for f in dataclasses.fields(RoundSpec))
+
+
+@dataclass(frozen=True)
+class CellRunner:
+    """Where cells run: ``via`` engine or graph, as sweep tasks of ``workers`` local CPUs or on the Ray cluster at
+    ``address`` (one worker and no address: one after the other in this process); a graph run in ``domain`` (auto: a
+    free one of its task's node), its log kept under ``logs`` when given."""
+
+    via: str
+    workers: int
+    address: str
+    domain: str = "auto"
+    logs: Path | None = None
+
+    def run(self, cells: list[EvalConfig], log, label: str = "scorecard cells") -> list[dict]:
+        """Every cell's figures, in the order of ``cells``, each logged as it comes back."""
+        if self.via == "graph":
+            tasks = run_tasks(graph_cell, [(self.graph_spec(cell),) for cell in cells], self.workers, self.address,
+                              cpus=GRAPH_RUN_CPUS, label=label, log=log)
+        else:
+            tasks = run_tasks(engine_cell, [(shipped_job(dataclasses.asdict(cell)),) for cell in cells], self.workers,
+                              self.address, label=label, log=log)
+        results: list[dict] = [{}] * len(cells)
+        for index, episodes in tasks:
+            cell = cells[index]
+            results[index] = figures(cell, episodes)
+            log(f"[scorecard] {cell.mode} {ATTACKS[cell.attack]} eps {cell.eps:g}: return "
+                f"{results[index]['mean_return']:.1f}", flush=True)
+        return results
+
+    def graph_spec(self, cell: EvalConfig) -> dict:
+        """``cell``'s graph run (:class:`RoundSpec`'s fields), its files marked to travel with its task; its log a
+        file the task makes when logs are kept, else none (the task reads it back on its node)."""
+        log_file = self.logs / f"{cell.mode}-{cell.attack}-{cell.eps:g}.mcap" if self.logs else None
+        run = {k: v for k, v in dataclasses.asdict(cell).items() if k in GRAPH_RUN_FIELDS}
+        return shipped_job({**run, "domain": self.domain, "record": Produced(log_file) if log_file else None})
+
+
+def figures(cell: EvalConfig, episodes: list[EpisodeStats]) -> dict:
+    """A cell's figures: every episode's (in episode order) and their summary."""
+    episodes = sorted(episodes, key=lambda e: e.episode)
+    summary = summarise_episodes(episodes)
+    return {"eps": cell.eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
+            "episodes": [{"episode": e.episode, "env_seed": cell.seed + e.episode, "return": e.reward,
+                          "expert_loss": round(e.expert_loss, 6), "steps": e.steps,
+                          "max_abs_delta": round(e.max_delta, 6)} for e in episodes]}
+
+
+def engine_cell(job: dict) -> list[EpisodeStats]:
+    """A cell on the engine (a sweep task): ``aril eval`` of ``job``, every episode's figures."""
+    episodes = []
+    evaluate(EvalConfig(**job), progress=episodes.append)
+    return episodes
+
+
+def graph_cell(spec: dict) -> list[EpisodeStats]:
+    """A cell as a run of the graph (a sweep task), every episode's figures read back from the run's log."""
+    spec = {k: str(v) if isinstance(v, Path) else v for k, v in spec.items()}  # a file's copy on the task's node
+    with tempfile.TemporaryDirectory(prefix="aril_scorecard-") as scratch:
+        record = Path(spec["record"] or Path(scratch) / "cell.mcap")
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
+        logged = read_run(plugins.load("aril_ros.collectors", "graph")(RoundSpec(**{**spec, "record": record})))
+    return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
