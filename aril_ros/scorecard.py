@@ -54,7 +54,7 @@ import numpy as np
 from . import plugins, seeds
 from .adversary import load_adversary, ready_adversary
 from .args import arg, comma_list
-from .dagger import RoundSpec
+from .collectors import RoundSpec
 from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate, shipped_job
 from .mcap_log import read_run

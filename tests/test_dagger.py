@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from aril_ros.dagger import LearnerConfig, train_learner
+from aril_ros.dagger import train_learner
+from aril_ros.learner_config import LearnerConfig
 from aril_ros.policy import load_policy
 
 
