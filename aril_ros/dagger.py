@@ -29,11 +29,12 @@ from .learner_config import LearnerConfig, checked
 from .learner_run import LearnerRun
 
 
-def train_learner(cfg: LearnerConfig, log=print) -> Path:
-    """Run (or resume) the rounds; write the selected policy to ``cfg.out`` and return its path."""
+def train_learner(cfg: LearnerConfig, log=print, collector=None) -> Path:
+    """Run (or resume) the rounds, each collected by ``collector`` (default: the one ``cfg`` names,
+    :func:`~aril_ros.collectors.collector_for`); write the selected policy to ``cfg.out`` and return its path."""
     cfg = checked(cfg)
     torch.set_num_threads(cfg.threads)
-    run, collector = LearnerRun(cfg, log), collector_for(cfg)
+    run, collector = LearnerRun(cfg, log), collector or collector_for(cfg)
     for r in range(len(run.rounds), cfg.rounds + 1):
         started = time.time()
         adversary = train_round_adversary(cfg, run, r, log)
