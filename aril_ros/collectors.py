@@ -5,6 +5,7 @@ seeds give the same pairs), and :func:`noisy_expert` is DART's: the expert colle
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,8 +66,13 @@ class Collected:
     """the collector's own figures for the round's record"""
 
 
-def collector_for(cfg: LearnerConfig):
-    """The collector of ``cfg``'s rounds: a function ``(run, r, learner, spec) -> Collected``."""
+Collector = Callable[[LearnerRun, int, object, RoundSpec], Collected]
+"""A collector: ``(run, r, learner, spec) -> Collected``, round ``r`` of ``run`` with ``learner`` (pi_r, the expert in
+round 0) as ``spec`` says."""
+
+
+def collector_for(cfg: LearnerConfig) -> Collector:
+    """The collector of ``cfg``'s rounds."""
     if cfg.source == "graph":
         return graph
     return noisy_expert if cfg.algorithm == "dart" else engine

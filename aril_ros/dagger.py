@@ -23,13 +23,13 @@ import torch
 
 from . import seeds
 from .aril_rounds import RoundAdversary, train_round_adversary
-from .collectors import RoundSpec, collector_for
+from .collectors import Collector, RoundSpec, collector_for
 from .dataset import DaggerDataset
 from .learner_config import LearnerConfig, checked
 from .learner_run import LearnerRun
 
 
-def train_learner(cfg: LearnerConfig, log=print, collector=None) -> Path:
+def train_learner(cfg: LearnerConfig, log=print, collector: Collector | None = None) -> Path:
     """Run (or resume) the rounds, each collected by ``collector`` (default: the one ``cfg`` names,
     :func:`~aril_ros.collectors.collector_for`); write the selected policy to ``cfg.out`` and return its path."""
     cfg = checked(cfg)
@@ -50,7 +50,7 @@ def train_learner(cfg: LearnerConfig, log=print, collector=None) -> Path:
     return select_best(cfg, run, log)
 
 
-def collect(collector, cfg: LearnerConfig, run: LearnerRun, r: int, adversary: RoundAdversary
+def collect(collector: Collector, cfg: LearnerConfig, run: LearnerRun, r: int, adversary: RoundAdversary
             ) -> tuple[dict, DaggerDataset]:
     """Run round ``r`` with ``collector``: the expert's clean demonstrations in round 0, then pi_r under the round's
     attack (its run is also its evaluation; dr and aril judge it clean too); the round's record and its (observation

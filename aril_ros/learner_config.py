@@ -24,10 +24,10 @@ SOURCES = ("inprocess", "graph")
 class ImitationConfig:
     """What is imitated, under which attack, for how many rounds."""
 
-    algorithm: str = arg("dagger", "dagger: the learner collects | dart: the expert collects with Gaussian action noise "
-                                   "sized by the learner's error (Laskey et al. 2017) | dr: dagger under random +-eps "
-                                   "perturbations (domain randomisation) | aril: dagger under ARIL-A, retrained against "
-                                   "each learner (the paper's Algorithm 1)")
+    algorithm: str = arg("dagger", "dagger: the learner collects | dart: the expert collects with Gaussian action "
+                                   "noise sized by the learner's error (Laskey et al. 2017) | dr: dagger under random "
+                                   "+-eps perturbations (domain randomisation) | aril: dagger under ARIL-A, retrained "
+                                   "against each learner (the paper's Algorithm 1)")
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the expert that labels the true states: a bundled name or a policy file")
     mode: str = arg("sensory", "dr and aril: sensory or physical perturbations (dagger and dart collect clean)")
@@ -71,7 +71,8 @@ class RoundAdversaryConfig:
 class LearnerConfig(RoundAdversaryConfig, FitConfig, ImitationConfig):
     """Arguments of ``aril train-learner``."""
 
-    eval_episodes: int = arg(5, f"dr and aril: episodes of each learner's clean evaluation (env seeds {seeds.LEARNER_EVAL}...)")
+    eval_episodes: int = arg(5, "dr and aril: episodes of each learner's clean evaluation "
+                                f"(env seeds {seeds.LEARNER_EVAL}...)")
     seed: int = arg(0, "seed of the fits, noise and adversaries; the rounds collect in the seed's training block "
                        "(aril_ros.seeds.collection(seed, round))")
     run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>[-<mode>]); an existing one is resumed")
