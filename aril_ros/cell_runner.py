@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import plugins
-from .dagger import RoundSpec
+from .collectors import RoundSpec
 from .evaluation import EvalConfig, evaluate, shipped_job
 from .mcap_log import read_run
 from .registry import ATTACKS

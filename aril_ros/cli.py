@@ -16,13 +16,14 @@ from pathlib import Path
 from . import plugins
 from .adversary import AdversaryConfig, train_adversary
 from .args import ArgumentError, arg, parse_args, usage
-from .dagger import LearnerConfig, train_learner
+from .dagger import train_learner
 from .envs import EnvLayoutError
 from .evaluation import EvalConfig, evaluate
 from .experiments import (AttackTableConfig, CalibrationConfig, DefenseTableConfig, attack_table, calibrate_eps,
                           defense_table)
 from .experts import ExpertConfig, train_expert
 from .gail import GailConfig, train_gail
+from .learner_config import LearnerConfig
 from .learners import BCConfig, train_bc
 from .mcap_log import RunLogError, recover
 from .onboard import OnboardConfig, onboard

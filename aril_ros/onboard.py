@@ -29,11 +29,12 @@ from pathlib import Path
 
 from . import seeds
 from .args import arg
-from .dagger import LearnerConfig, train_learner
+from .dagger import train_learner
 from .envs import layout_of
 from .evaluation import EvalConfig, evaluate
 from .experiments import CalibrationConfig, calibrate_eps
 from .experts import ExpertConfig, train_expert
+from .learner_config import LearnerConfig
 from .policy import load_policy
 from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps, user_data_dir, user_path
 

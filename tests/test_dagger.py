@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from aril_ros.dagger import LearnerConfig, train_learner
+from aril_ros.dagger import train_learner
+from aril_ros.learner_config import LearnerConfig
 from aril_ros.policy import load_policy
 
 
@@ -215,3 +216,44 @@ def test_query_attacks_compete_with_the_trained_adversaries_for_f_t(tmp_path):
         train_learner(small(tmp_path, algorithm="aril", round_attacks="fgsm_k"), log=quiet)
     with pytest.raises(ValueError, match="without warm_start"):
         train_learner(small(tmp_path, algorithm="aril", round_attacks="spsa", warm_start=True), log=quiet)
+
+
+def test_the_rounds_collect_with_the_collector_they_are_given(tmp_path):
+    """A collector passed in runs every round, each as its RoundSpec says (round 0: the expert, clean), and its own
+    figures go into the round's record."""
+    import dataclasses
+
+    from aril_ros import collectors, seeds
+
+    seen = []
+
+    def counting(run, r, learner, spec):
+        seen.append((r, spec.mode, spec.attack, spec.eps, spec.seed, spec.policy))
+        return dataclasses.replace(collectors.engine(run, r, learner, spec), figures={"collected_by": "counting"})
+
+    train_learner(small(tmp_path, algorithm="dr", mode="sensory", eps=0.05, seed=1), log=quiet, collector=counting)
+    run = tmp_path / "run"
+    assert seen == [(0, "clean", "none", 0.0, seeds.collection(1, 0), "expert")] + [
+        (r, "sensory", "random", 0.05, seeds.collection(1, r), str(run / f"pi-{r}.pt")) for r in (1, 2)]
+    rounds = json.loads((run / "state.json").read_text())["rounds"]
+    assert [r["collected_by"] for r in rounds] == ["counting"] * 3
+
+
+def test_the_bundled_learners_commands_name_their_arguments_in_the_configs_order():
+    """LearnerConfig is made of parts; its arguments keep the order every bundled learner's command names them in,
+    and each command parses back to the settings its file records."""
+    import dataclasses
+
+    from aril_ros.args import parse_args
+    from aril_ros.provenance import settings_of
+    from aril_ros.registry import DATA_DIR
+
+    order = [f.name for f in dataclasses.fields(LearnerConfig)]
+    files = [f for name in ("dagger", "dart", "dr", "aril") for f in sorted((DATA_DIR / name).glob("*.pt"))]
+    assert len(files) == 18
+    for file in files:
+        provenance = load_policy(file).meta.provenance
+        words = provenance["command"].split()[2:]
+        keys = [word.split(":=")[0] for word in words]
+        assert keys == sorted(keys, key=order.index), file
+        assert parse_args(LearnerConfig, words) == settings_of(provenance, LearnerConfig), file

@@ -279,7 +279,7 @@ def test_a_dagger_round_runs_through_the_graph_in_process(tmp_path):
     """train-learner source:=graph: the collector runs the round in the caller's process (no script by
     path) and leaves its log, which holds the engine's trajectory; a failed round names its log."""
     from aril_ros import plugins
-    from aril_ros.dagger import RoundSpec
+    from aril_ros.collectors import RoundSpec
 
     env_id = "Hopper-v5"  # a random policy falls within 20 steps: the default horizon costs nothing
     policy, expert = policy_files(tmp_path, env_id)
@@ -563,7 +563,8 @@ def test_render_records_camera_frames_beside_the_steps(tmp_path):
 
 @pytest.mark.parametrize("algorithm", ["gail", "dart", "dr"])
 def test_trained_defenses_load_in_the_policy_node(algorithm, tmp_path):
-    from aril_ros.dagger import LearnerConfig, train_learner
+    from aril_ros.dagger import train_learner
+    from aril_ros.learner_config import LearnerConfig
     from aril_ros.gail import GailConfig, train_gail
 
     quiet = lambda *a, **k: None  # noqa: E731

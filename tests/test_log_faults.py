@@ -293,7 +293,10 @@ def test_a_pickled_policy_is_refused_without_advice_to_run_it(tmp_path):
 
 def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(recorded, tmp_path, monkeypatch):
     """The graph's writer never writes into an existing file, so the round's log of a killed attempt must go."""
-    from aril_ros import dagger, plugins
+    from aril_ros import collectors, dagger, plugins
+    from aril_ros.aril_rounds import RoundAdversary
+    from aril_ros.learner_config import LearnerConfig
+    from aril_ros.learner_run import LearnerRun
 
     log, _ = recorded
 
@@ -303,10 +306,10 @@ def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(r
         return spec.record
 
     monkeypatch.setattr(plugins, "load", lambda group, name: collector)
-    cfg = dagger.LearnerConfig(env="Swimmer-v5", mode="sensory", source="graph", run_dir=str(tmp_path / "run"))
-    run = dagger.LearnerRun(cfg, log=lambda *a, **k: None)
+    cfg = LearnerConfig(env="Swimmer-v5", mode="sensory", source="graph", run_dir=str(tmp_path / "run"))
+    run = LearnerRun(cfg, log=lambda *a, **k: None)
     (run.dir / "round-0.mcap").write_bytes(log.read_bytes()[:5000])  # the attempt killed mid-round
-    record, part = dagger.collect(cfg, run, 0, "none", "")
+    record, part = dagger.collect(collectors.graph, cfg, run, 0, RoundAdversary("none"))
     assert len(part) == 40 and (run.dir / "round-0.mcap").read_bytes() == log.read_bytes()
 
 

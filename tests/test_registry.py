@@ -60,7 +60,7 @@ def test_bundled_files_and_the_calibration_are_package_data():
 
 
 def test_settings_travel_as_json_in_provenance():
-    from aril_ros.dagger import LearnerConfig
+    from aril_ros.learner_config import LearnerConfig
     from aril_ros.policy import load_weights
     from aril_ros.provenance import settings_of, stamp
 
