@@ -42,15 +42,15 @@ from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
 from .args import arg, comma_list
 from .attacks import make_attack
-from .dataset import DaggerDataset
+from .dataset import DaggerDataset, dataset_of_run
 from .envs import HORIZON, layout_of
 from .files import write_atomically
 from .learners import fit_policy
-from .mcap_log import dataset_of_run, read_run
 from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
 from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps
 from .rollout import RolloutEngine
+from .runlog import read_run
 from .step import disagreement, episode_stats
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
@@ -121,7 +121,7 @@ class RoundSpec:
     seed: int
     """env seed of the first episode (and of the attack noise)"""
     record: Path
-    """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.mcap_log`)"""
+    """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.runlog`)"""
     horizon: int = HORIZON
     """steps per episode"""
     domain: str = "auto"

@@ -57,7 +57,6 @@ from .args import arg, comma_list
 from .dagger import RoundSpec
 from .envs import HORIZON
 from .evaluation import EvalConfig, evaluate, shipped_job
-from .mcap_log import read_run
 from .policy import resolve_policy
 from .protocol import checked_domain, ros_domain
 from .provenance import stamp
@@ -72,6 +71,7 @@ from .registry import (
     check_name,
 )
 from .report.stats import t95, worst_attack
+from .runlog import read_run
 from .step import EpisodeStats, episode_stats, summarise_episodes
 from .sweep import Produced, run_tasks, session
 
