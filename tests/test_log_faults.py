@@ -61,14 +61,16 @@ def steps_of(log):
 
 def write_log(path, meta, steps, extra=None, close=True):
     """Write ``steps`` with the real writer; ``extra`` ({row: [(topic, cdr bytes)]}) goes after its row's step, as a
-    second message of that step would; ``close=False`` leaves the log as a killed run does."""
+    second message of that step would; ``close=False`` leaves the log open, as a killed run does, and returns its
+    writer."""
     writer = RunLogWriter(path, meta)
     for row, (stamp, messages) in enumerate(steps):
         writer.write_step(stamp, messages)
         for topic, raw in (extra or {}).get(row, []):
             writer._add(topic, stamp, raw)
-    if close:
-        writer.close(interrupted=False, episodes=[])  # the end record's figures are not what these logs test
+    if not close:
+        return writer
+    writer.close(interrupted=False, episodes=[])  # the end record's figures are not what these logs test
     return path
 
 
@@ -337,8 +339,9 @@ def test_the_log_and_the_json_line_record_every_attack_setting_and_the_digest_of
     assert summary["attack_settings"] == run.metadata["attack_settings"] and summary["files"] == run.metadata["files"]
 
 
-@pytest.mark.parametrize("args, iterations", [({"attack": "spsa"}, None), ({"attack": "spsa", "k": 3, "samples": 2}, (3, 2)),
-                                              ({"attack": "fgsm_k"}, None), ({"attack": "fgsm", "k": 4}, (4, None))])
+@pytest.mark.parametrize("args, iterations", [({"attack": "spsa"}, None), ({"attack": "fgsm_k"}, None),
+                                              ({"attack": "spsa", "k": 3, "samples": 2}, (3, 2)),
+                                              ({"attack": "fgsm", "k": 4}, (4, None))])
 def test_a_run_records_k_and_samples_as_its_attack_runs_them(args, iterations):
     """0 asks for the attack's own default: the log says which that was, read here from the attack itself."""
     from aril_ros.attacks import make_attack
@@ -346,7 +349,8 @@ def test_a_run_records_k_and_samples_as_its_attack_runs_them(args, iterations):
     from aril_ros.policy import resolve_policy
     from aril_ros_nodes.graph_config import GraphConfig, plan_run
 
-    settings = plan_run(GraphConfig(env="Swimmer-v5", eps=0.1, seed=3, record="off", **args)).metadata()["attack_settings"]
+    plan = plan_run(GraphConfig(env="Swimmer-v5", eps=0.1, seed=3, record="off", **args))
+    settings = plan.metadata()["attack_settings"]
     if iterations is None:
         expert = resolve_policy("expert", "Swimmer-v5")
         attack = make_attack(args["attack"], layout_of("Swimmer-v5"), 0.1, victim=expert, expert=expert)
@@ -368,16 +372,17 @@ def test_the_bundled_adversary_is_recorded_by_its_package_path_and_digest(named)
         plan = plan_run(GraphConfig(env="Swimmer-v5", mode="physical", attack="aril_a" if named else "",
                                     attack_file=attack_file, search=2 if named else 0, record="off"))
         meta = plan.metadata()
+        policy, expert = (policy_file(name, "Swimmer-v5") for name in ("dagger", "expert"))
         assert meta["files"] == {
             "adversary": {"path": "aril_ros/data/adversary/Swimmer-v5-physical.pt", "sha256": sha256(bundled)},
-            "policy": {"path": "aril_ros/data/dagger/Swimmer-v5.pt", "sha256": sha256(policy_file("dagger", "Swimmer-v5"))},
-            "expert": {"path": "aril_ros/data/expert/Swimmer-v5.pt", "sha256": sha256(policy_file("expert", "Swimmer-v5"))}}
+            "policy": {"path": "aril_ros/data/dagger/Swimmer-v5.pt", "sha256": sha256(policy)},
+            "expert": {"path": "aril_ros/data/expert/Swimmer-v5.pt", "sha256": sha256(expert)}}
         assert meta["attack_settings"] == {"attack": "aril_a", "eps": load_adversary(bundled).eps, "k": None,
                                            "samples": None, "search": 2 if named else 0, "rescale": False, "seed": 0}
 
 
 def test_the_end_record_holds_each_episode_s_figures_as_its_steps_sum_to(recorded_run):
-    """The recorder takes them once, as it writes the steps; readers (a graph round's collector) take them from there."""
+    """The recorder takes them once, as it writes the steps; a reader (a graph round's collector) finds them there."""
     log, summary, _ = recorded_run
     run = read_run(log)
     summed = []
@@ -389,6 +394,23 @@ def test_the_end_record_holds_each_episode_s_figures_as_its_steps_sum_to(recorde
     recorded = [(e.episode, e.reward, e.squared_loss, e.steps, e.max_delta, e.done) for e in run.episode_stats]
     assert recorded == summed and run.end["episodes_completed"] == 2
     assert summary["returns"] == [round(e.reward, 3) for e in run.episode_stats]
+
+
+def test_a_log_from_before_the_end_record_held_figures_reads_and_says_it_has_none(recorded, tmp_path):
+    from aril_ros.runlog.layout import encoded
+
+    log, _ = recorded
+    meta, steps = steps_of(log)
+    writer = write_log(tmp_path / "older.mcap", meta, steps, close=False)
+    older = read_run(log).end
+    del older["episode_stats"]
+    writer._writer.add_metadata("aril_run_end", encoded(older))  # as an older aril_ros closed its logs
+    writer._writer.finish()
+    writer._file.close()
+    run = read_run(tmp_path / "older.mcap")
+    assert run.tags == read_run(log).tags
+    with pytest.raises(RunLogError, match="the log's end record has no episode_stats"):
+        run.episode_stats
 
 
 def test_the_recorder_reads_a_joint_state_s_values_in_place_as_deserialising_does():

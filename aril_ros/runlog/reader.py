@@ -49,6 +49,9 @@ class RunLog(StepArrays):
     @property
     def episode_stats(self) -> list[EpisodeStats]:
         """The completed episodes' figures, as the recorder took them while the run went (its end record's)."""
+        if "episode_stats" not in self.end:
+            raise RunLogError("the log's end record has no episode_stats (recorded by an aril_ros older than them): "
+                              "its steps are all there is")
         return [EpisodeStats(**figures) for figures in self.end["episode_stats"]]
 
 
@@ -185,8 +188,6 @@ def _assemble(path: Path, rules: RunRules, meta: dict, end: dict, collected: Col
         raise RunLogError(f"{path}: {jump}")
     if end.get("steps") != len(order):
         raise RunLogError(f"{path}: its end record counts {end.get('steps')} steps, the log holds {len(order)}")
-    if "episode_stats" not in end:
-        raise RunLogError(f"{path}: its end record lacks episode_stats (recorded by an older aril_ros?)")
 
     def column(topic, width):  # shaped by the run's layout, so a log without rows has (0, width)
         return np.array([getattr(collected.steps[tag][topic][0].decoded, VALUES[topic]) for tag in order],

@@ -1,7 +1,7 @@
 """The step recorder behind a graph run, fed the raw CDR of every message on the step topics (no rclpy here): it
 joins each step's messages by step tag and the probes asked during it by probe tag, writes a step once it is
 complete, in order, and takes each episode's figures as it writes its steps, once: they go into the log's end
-record (:attr:`aril_ros.runlog.reader.RunLog.episode_stats`), so no reader sums them again."""
+record (:attr:`aril_ros.runlog.reader.RunLog.episode_stats`), where a reader finds them without summing the steps."""
 from __future__ import annotations
 
 import hashlib
