@@ -18,11 +18,12 @@ Foxglove:
   (:data:`aril_ros.protocol.PROBE_CHANNELS`), byte for byte as published on ``observation`` and ``action``, right
   after their step at its log time, in the order asked; the step channels hold the steps alone;
 - metadata :data:`RUN` at the start: env, mode, attack, eps, seed, episodes, the observation layout with its
-  zero-order entries, ``attack_settings`` and ``files`` (what acted in the run: :data:`ACTING_FILES`, each file's
-  path and SHA-256), policy and expert provenance, as JSON strings; and :data:`END` at the end
-  (:data:`END_KEYS`: steps, episodes completed with each one's figures, interrupted, reason, missing steps). A
-  file without :data:`END` or without its summary was cut short: the reader refuses it, recovery rewrites its
-  intact steps into a valid log.
+  zero-order entries, ``attack_settings`` (every setting of the attack as it ran) and ``files`` (the policy, the
+  expert and the adversary that acted, each its path and SHA-256, or null), policy and expert provenance, as JSON
+  strings; and :data:`END` at the end: ``steps``, ``episodes_completed``, ``interrupted``, ``reason``,
+  ``missing_steps`` and ``episode_stats`` (each completed episode's :class:`aril_ros.step.EpisodeStats` fields).
+  A file without :data:`END` or without its summary was cut short: the reader refuses it, recovery rewrites its
+  intact steps into a valid log. msgs_doc/README.md ("Run logs") is the human-readable form of this layout.
 """
 from __future__ import annotations
 
@@ -34,11 +35,6 @@ RUN = "aril_run"
 """The metadata record written first: what the run was (its values JSON-encoded)."""
 END = "aril_run_end"
 """The metadata record written last: how the run ended."""
-END_KEYS = ("steps", "episodes_completed", "interrupted", "reason", "missing_steps", "episode_stats")
-"""The keys of :data:`END`, in the order written (``episode_stats``: each completed episode's figures, as
-:class:`aril_ros.step.EpisodeStats` fields)."""
-ACTING_FILES = ("policy", "expert", "adversary")
-"""The files that act in a run, each recorded in :data:`RUN`'s ``files`` with its path and SHA-256."""
 
 _TIME = "int32 sec\nuint32 nanosec\n"
 _HEADER = "=" * 80 + "\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"

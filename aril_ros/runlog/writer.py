@@ -94,8 +94,8 @@ class RunLogWriter:
                                  sequence=self._sequence)
 
     def close(self, *, interrupted: bool, episodes: list[EpisodeStats], reason: str = "", missing_steps=()) -> None:
-        """Write the end record (:data:`~aril_ros.runlog.layout.END_KEYS`: ``episodes``, the completed episodes'
-        figures; ``missing_steps``, the step tags a recovered log lacks inside its episodes) and the summary. After
+        """Write the end record (:data:`~aril_ros.runlog.layout.END`; ``episodes``: the completed episodes' figures,
+        ``missing_steps``: the step tags a recovered log lacks inside its episodes) and the summary. After
         a write failure the log is interrupted whatever the caller says, and a second failure here is not raised
         again (the first is on its way)."""
         if self._file.closed:
