@@ -11,6 +11,8 @@ episode's perturbations do not depend on how many episodes run side by side.
 """
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import torch
 
@@ -283,14 +285,38 @@ def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=No
 
 def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: str | None, rescale: bool,
                     victim, expert, search: int) -> LearnedAttack:
+    _, net = learned_adversary(layout.env_id, mode, adversary, eps, rescale)
+    return LearnedAttack(layout, net, eps=learned_eps(net, eps, rescale), victim=victim, expert=expert,
+                         search=search)
+
+
+def learned_adversary(env_id: str, mode: str | None, adversary: str | None = None, eps: float = 0.0,
+                      rescale: bool = False) -> tuple[str, AdversaryNet]:
+    """The file aril_a runs (``adversary``; none: the bundled one against the bundled learner) and its network,
+    checked against the env and mode; an ``eps`` other than the one it was trained with needs ``rescale``."""
     if not adversary:
-        bundled = adversary_path(layout.env_id, mode or "sensory")
+        bundled = adversary_path(env_id, mode or "sensory")
         if not bundled.exists():
-            raise ValueError(f"attack aril_a needs an adversary file: no bundled one for {layout.env_id} "
+            raise ValueError(f"attack aril_a needs an adversary file: no bundled one for {env_id} "
                              f"{mode} (looked for {bundled}); pass attack_file:= (from aril train-adversary)")
         adversary = str(bundled)
-    net = load_adversary(adversary, layout.env_id, mode)
+    net = load_adversary(adversary, env_id, mode)
     if eps and abs(eps - net.eps) > 1e-12 and not rescale:
         raise ValueError(f"{adversary} was trained with eps={net.eps}, not eps={eps} (rescale:=true scales it)")
-    return LearnedAttack(layout, net, eps=eps if eps and rescale else None, victim=victim, expert=expert,
-                         search=search)
+    return adversary, net
+
+
+def learned_eps(net: AdversaryNet, eps: float, rescale: bool) -> float:
+    """The eps aril_a runs at: ``eps`` when ``rescale`` scales its adversary to it, else the adversary's own."""
+    return eps if eps and rescale else net.eps
+
+
+def iteration_settings(name: str, k: int = 0, samples: int = 0) -> dict[str, int | None]:
+    """``k`` (iterations) and ``samples`` (spsa's directions per iteration) as attack ``name`` runs them: the ones
+    given, or for 0 the attack's own defaults; None for a setting the attack does not read."""
+    params = inspect.signature(CLASSES[name].__init__).parameters if name in CLASSES else {}
+
+    def setting(param: str, given: int) -> int | None:
+        return (given or params[param].default) if param in params else None
+
+    return {"k": setting("steps", k), "samples": setting("samples", samples)}

@@ -20,9 +20,9 @@ from pathlib import Path
 from . import plugins
 from .collectors import RoundSpec
 from .evaluation import EvalConfig, evaluate, shipped_job
-from .mcap_log import read_run
 from .registry import ATTACKS
-from .step import EpisodeStats, episode_stats, summarise_episodes
+from .runlog import read_run
+from .step import EpisodeStats, summarise_episodes
 from .sweep import Produced, run_tasks
 
 GRAPH_RUN_CPUS = 2
@@ -92,4 +92,4 @@ def graph_cell(spec: dict) -> list[EpisodeStats]:
         record.parent.mkdir(parents=True, exist_ok=True)
         record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
         logged = read_run(plugins.load("aril_ros.collectors", "graph")(RoundSpec(**{**spec, "record": record})))
-    return episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
+    return logged.episode_stats  # the recorder's figures, taken once as the run went

@@ -25,11 +25,11 @@ from .experts import ExpertConfig, train_expert
 from .gail import GailConfig, train_gail
 from .learner_config import LearnerConfig
 from .learners import BCConfig, train_bc
-from .mcap_log import RunLogError, recover
 from .onboard import OnboardConfig, onboard
 from .policy import PolicyFileError
 from .render import RenderConfig, RenderError, render
 from .report import ReportConfig, build_report
+from .runlog import RunLogError, recover
 from .scan import ScanConfig, scan_adversary
 from .scorecard import ScorecardConfig, scorecard
 

@@ -17,8 +17,8 @@ from .dataset import DaggerDataset
 from .envs import HORIZON
 from .learner_config import LearnerConfig
 from .learner_run import LearnerRun
-from .mcap_log import dataset_of_run, read_run
-from .step import episode_stats
+from .dataset import dataset_of_run
+from .runlog import read_run
 
 
 @dataclass
@@ -40,7 +40,7 @@ class RoundSpec:
     seed: int
     """env seed of the first episode (and of the attack noise)"""
     record: Path
-    """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.mcap_log`)"""
+    """where the collector writes the round's run log (MCAP, see :mod:`aril_ros.runlog`)"""
     horizon: int = HORIZON
     """steps per episode"""
     domain: str = "auto"
@@ -90,7 +90,7 @@ def graph(run: LearnerRun, r: int, learner, spec: RoundSpec) -> Collected:
     spec.record.unlink(missing_ok=True)  # an earlier, killed attempt at this round: the run log is made anew
     log_path = plugins.load("aril_ros.collectors", "graph")(spec)
     logged = read_run(log_path)
-    episodes = episode_stats(logged.episodes, logged.reward, logged.action, logged.expert_action, logged.delta)
+    episodes = logged.episode_stats  # the recorder's figures, taken once as the run went
     expert_loss = sum(e.squared_loss for e in episodes) / sum(e.steps for e in episodes)
     return Collected(dataset_of_run(logged, log_path), np.array([e.reward for e in episodes]), expert_loss)
 

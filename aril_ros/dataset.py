@@ -1,14 +1,17 @@
 """The DAgger dataset: (observation the policy saw, expert action on the true state) pairs.
 
 One format whatever the source: in-process rollouts (:meth:`DaggerDataset.from_trajectories`) or
-run logs recorded through the ROS graph (:func:`aril_ros.mcap_log.load_dagger_dataset`).
+run logs recorded through the ROS graph (:func:`load_dagger_dataset`).
 Aggregation (DAgger's data set union) is :meth:`DaggerDataset.concatenate`, in the order given.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from .runlog import RunLog, RunLogError, read_run
 
 
 @dataclass
@@ -39,3 +42,23 @@ class DaggerDataset:
                    expert_action=np.concatenate([p.expert_action for p in parts]),
                    episode=np.concatenate([p.episode for p in parts]),
                    source=[s for p in parts for s in p.source])
+
+
+def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: bool = False) -> DaggerDataset:
+    """Aggregate one or many run logs, in the order given; all must be of the same env."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not paths:
+        raise RunLogError("no run logs given")
+    runs = [read_run(p, allow_interrupted) for p in paths]
+    envs = {run.metadata["env"] for run in runs}
+    if env_id is not None:
+        envs.add(env_id)
+    if len(envs) > 1:
+        raise RunLogError(f"run logs of different envs cannot make one dataset: {sorted(envs)}")
+    return DaggerDataset.concatenate([dataset_of_run(r, p) for p, r in zip(paths, runs)])
+
+
+def dataset_of_run(run: RunLog, path) -> DaggerDataset:
+    """The (observation seen, expert action) pairs of one run log already read from ``path``."""
+    return DaggerDataset(obs=run.obs, expert_action=run.expert_action, episode=run.episodes,
+                         source=[str(path)] * len(run.tags))

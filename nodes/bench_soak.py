@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from aril_ros.args import arg, module_config
-from aril_ros.mcap_log import RunLogError, read_run
 from aril_ros.registry import DEFAULT_ENV, MODES
+from aril_ros.runlog import RunLogError, read_run
 
 ROLES = ("orchestrator", "simulator", "attacker", "policy", "expert")
 PAGE_MB = 4096 / 2**20

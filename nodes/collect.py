@@ -2,7 +2,9 @@
 
 ``aril train-learner source:=graph`` hands :func:`collect_round` a :class:`aril_ros.dagger.RoundSpec`;
 the round runs here, in the caller's process, through the :class:`Orchestrator` (the nodes are its
-child processes, as with ``run_graph.py``), and its run log is what the library reads back.
+child processes, as with ``run_graph.py``), and its run log is what the library reads back: the steps, and each
+episode's figures as the recorder took them while the round ran (the log's end record,
+:attr:`aril_ros.runlog.reader.RunLog.episode_stats`).
 """
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from aril_ros.args import arg
 from aril_ros.cli import Command
-from aril_ros.mcap_log import read_run
+from aril_ros.runlog import read_run
 
 
 @dataclass

@@ -100,6 +100,6 @@ def test_the_library_has_no_import_loop():
 
 
 @pytest.mark.parametrize("module", ["aril_ros.step", "aril_ros.registry", "aril_ros.seeds", "aril_ros.protocol",
-                                    "aril_ros.mcap_log"])
+                                    "aril_ros.runlog"])
 def test_the_step_rules_and_the_log_reader_need_no_torch(module):
     assert _run(f"import json, sys, {module}; print(json.dumps({{'torch': 'torch' in sys.modules}}))") == {"torch": False}

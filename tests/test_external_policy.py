@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from aril_ros.envs import MujocoSim, layout_of
-from aril_ros.mcap_log import read_run
+from aril_ros.runlog import read_run
 from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, ros_env, run_graph
 
 README = ROOT / "msgs_doc" / "README.md"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from aril_ros.evaluation import EvalConfig, evaluate
-from aril_ros.mcap_log import read_run
 from aril_ros.registry import adversary_path, choose_attack
+from aril_ros.runlog import read_run
 from aril_ros.step import episode_stats
 from tests.test_external_policy import documented_node, start_node, stop
 from tests.test_graph import free_domain, run_graph, summary_of

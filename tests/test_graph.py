@@ -17,10 +17,10 @@ import pytest
 
 from aril_ros.attacks import make_attack
 from aril_ros.envs import MujocoSim, layout_of
-from aril_ros.mcap_log import RunLogError, read_run, recover
 from aril_ros.policy import load_policy, save_policy
 from aril_ros.rollout import RolloutEngine
-from aril_ros_nodes.orchestrator import allocate_domain
+from aril_ros.runlog import RunLogError, read_run, recover
+from aril_ros_nodes.launcher import allocate_domain
 from tests.conftest import random_policy
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -182,7 +182,7 @@ def test_log_reads_step_by_step_with_rosbags(recorded):
 def test_dataset_loader_and_its_refusals(recorded, tmp_path):
     from mcap.writer import Writer
 
-    from aril_ros.mcap_log import load_dagger_dataset
+    from aril_ros.dataset import load_dagger_dataset
 
     data = load_dagger_dataset([recorded, recorded])
     run = read_run(recorded)

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from aril_ros import protocol as P
-from aril_ros.mcap_log import RunLogError, read_run
 from aril_ros.protocol import StepTag
+from aril_ros.runlog import RunLogError, read_run
 from tests.test_graph import free_domain, policy_files, ros_env, run_graph
 from tests.test_probes import step_messages
 
@@ -170,7 +170,7 @@ def test_a_different_second_action_is_a_fault_naming_step_topic_and_publisher(tm
 
 # ------------------------------------------------------------------------------ the recorder alone (no ROS)
 def recorder_with_steps(n: int):
-    from aril_ros_nodes.orchestrator import StepRecorder
+    from aril_ros.runlog import StepRecorder
 
     recorder = StepRecorder(None)
     recorder.start_episode(0)
@@ -198,7 +198,7 @@ def test_the_recorder_counts_identical_copies_and_never_reopens_a_written_step()
 
 @pytest.mark.parametrize("written", [True, False])
 def test_the_recorder_refuses_a_different_second_message_for_a_step(written):
-    from aril_ros_nodes.orchestrator import StepFault
+    from aril_ros.runlog import StepFault
 
     recorder, steps = recorder_with_steps(2)
     other = step_messages(StepTag(0, 0), 0, done=True)[P.REWARD]  # same tag, other bytes
@@ -212,7 +212,7 @@ def test_the_recorder_refuses_a_different_second_message_for_a_step(written):
 
 def test_a_malformed_frame_id_is_a_fault_naming_the_topic():
     from aril_ros_nodes.common import step_header
-    from aril_ros_nodes.orchestrator import StepFault
+    from aril_ros.runlog import StepFault
     from tests.test_probes import cdr
 
     recorder, _ = recorder_with_steps(1)

@@ -5,11 +5,13 @@ without advice to run it. The corrupted logs are written by the real writer from
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import re
 import resource
 import stat
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,22 +19,31 @@ import torch
 from mcap.reader import make_reader
 
 from aril_ros import protocol as P
-from aril_ros.mcap_log import RunLogError, RunLogWriter, load_dagger_dataset, read_run, recover
+from aril_ros.dataset import load_dagger_dataset
 from aril_ros.protocol import StepTag
+from aril_ros.registry import adversary_path
+from aril_ros.runlog import RunLogError, RunLogWriter, read_run, recover
 from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, run_graph, summary_of
 
 RUN = ("env:=Swimmer-v5", "mode:=sensory", "attack:=random", "eps:=0.1", "episodes:=2", "horizon:=20")
 COMPARED = ("true_obs", "obs", "delta", "action", "expert_action", "reward", "physics_state", "stamp_ns")
-END_KEYS = {"steps", "episodes_completed", "interrupted", "reason", "missing_steps"}
+END_KEYS = {"steps", "episodes_completed", "interrupted", "reason", "missing_steps", "episode_stats"}
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """One recorded run (2 episodes of 20 steps) and the policy files it ran with."""
+def recorded_run(tmp_path_factory):
+    """One recorded run (2 episodes of 20 steps), its JSON line, and the policy and expert files it ran with."""
     tmp = tmp_path_factory.mktemp("recorded")
     policy, expert = policy_files(tmp, "Swimmer-v5")
     log = tmp / "run.mcap"
-    summary_of(run_graph(*RUN, f"policy:={policy}", f"expert:={expert}", f"record:={log}"))
+    summary = summary_of(run_graph(*RUN, f"policy:={policy}", f"expert:={expert}", f"record:={log}"))
+    return log, summary, (policy, expert)
+
+
+@pytest.fixture
+def recorded(recorded_run):
+    """The recorded run's log and the arguments naming its files."""
+    log, _, (policy, expert) = recorded_run
     return log, (f"policy:={policy}", f"expert:={expert}")
 
 
@@ -50,14 +61,16 @@ def steps_of(log):
 
 def write_log(path, meta, steps, extra=None, close=True):
     """Write ``steps`` with the real writer; ``extra`` ({row: [(topic, cdr bytes)]}) goes after its row's step, as a
-    second message of that step would; ``close=False`` leaves the log as a killed run does."""
+    second message of that step would; ``close=False`` leaves the log open, as a killed run does, and returns its
+    writer."""
     writer = RunLogWriter(path, meta)
     for row, (stamp, messages) in enumerate(steps):
         writer.write_step(stamp, messages)
         for topic, raw in (extra or {}).get(row, []):
             writer._add(topic, stamp, raw)
-    if close:
-        writer.close(interrupted=False, episodes_completed=2)
+    if not close:
+        return writer
+    writer.close(interrupted=False, episodes=[])  # the end record's figures are not what these logs test
     return path
 
 
@@ -162,7 +175,8 @@ def test_log_recover_drops_a_step_missing_a_message_and_keeps_the_rest(recorded,
     assert recovery.steps == 39 and recovery.dropped == {StepTag(0, 5): "step 0/5 misses expert/action"}
     run, original = read_run(tmp_path / "recovered.mcap", allow_interrupted=True), read_run(log)
     assert run.end == {"steps": 39, "episodes_completed": 1, "interrupted": True, "missing_steps": ["0/5"],
-                       "reason": "recovered from cut.mcap: 39 steps kept, 1 dropped, 0 damaged or stray parts skipped"}
+                       "reason": "recovered from cut.mcap: 39 steps kept, 1 dropped, 0 damaged or stray parts skipped",
+                       "episode_stats": original.end["episode_stats"][1:]}  # the episode kept whole, as recorded
     keep = np.arange(40) != 5
     for name in COMPARED:
         np.testing.assert_array_equal(getattr(run, name), getattr(original, name)[keep], err_msg=name)
@@ -257,7 +271,7 @@ def test_a_full_disk_stops_the_run_with_a_clear_error_and_leaves_its_steps_recov
 def test_the_domain_lock_directory_is_shared_by_every_user(monkeypatch, tmp_path):
     import tempfile
 
-    from aril_ros_nodes.orchestrator import allocate_domain
+    from aril_ros_nodes.launcher import allocate_domain
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     (tmp_path / "aril_ros-domains").mkdir(mode=0o755)  # as an older aril_ros made it
@@ -313,11 +327,100 @@ def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(r
     assert len(part) == 40 and (run.dir / "round-0.mcap").read_bytes() == log.read_bytes()
 
 
+def sha256(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def test_the_log_and_the_json_line_record_every_attack_setting_and_the_digest_of_every_acting_file(recorded_run):
+    log, summary, (policy, expert) = recorded_run
+    run = read_run(log)
+    assert run.metadata["attack_settings"] == {"attack": "random", "eps": 0.1, "k": None, "samples": None, "search": 0,
+                                               "rescale": False, "seed": 0}  # random reads neither k nor samples
+    assert run.metadata["files"] == {"policy": {"path": str(policy.resolve()), "sha256": sha256(policy)},
+                                     "expert": {"path": str(expert.resolve()), "sha256": sha256(expert)},
+                                     "adversary": None}
+    assert summary["attack_settings"] == run.metadata["attack_settings"] and summary["files"] == run.metadata["files"]
+
+
+@pytest.mark.parametrize("args, iterations", [({"attack": "spsa"}, None), ({"attack": "fgsm_k"}, None),
+                                              ({"attack": "spsa", "k": 3, "samples": 2}, (3, 2)),
+                                              ({"attack": "fgsm", "k": 4}, (4, None))])
+def test_a_run_records_k_and_samples_as_its_attack_runs_them(args, iterations):
+    """0 asks for the attack's own default: the log says which that was, read here from the attack itself."""
+    from aril_ros.attacks import make_attack
+    from aril_ros.envs import layout_of
+    from aril_ros.policy import resolve_policy
+    from aril_ros_nodes.graph_config import GraphConfig, plan_run
+
+    plan = plan_run(GraphConfig(env="Swimmer-v5", eps=0.1, seed=3, record="off", **args))
+    settings = plan.metadata()["attack_settings"]
+    if iterations is None:
+        expert = resolve_policy("expert", "Swimmer-v5")
+        attack = make_attack(args["attack"], layout_of("Swimmer-v5"), 0.1, victim=expert, expert=expert)
+        iterations = (attack.steps, getattr(attack, "samples", None))
+    assert settings == {"attack": args["attack"], "eps": 0.1, "k": iterations[0], "samples": iterations[1],
+                        "search": 0, "rescale": False, "seed": 3}
+
+
+@pytest.mark.parametrize("named", [False, True])
+def test_the_bundled_adversary_is_recorded_by_its_package_path_and_digest(named):
+    """Whether the run chose it (the default attack against the bundled learner) or it was named, with its file or
+    without: never ``''`` nor this machine's absolute path."""
+    from aril_ros.adversary_net import load_adversary
+    from aril_ros.policy import policy_file
+    from aril_ros_nodes.graph_config import GraphConfig, plan_run
+
+    bundled = adversary_path("Swimmer-v5", "physical")
+    for attack_file in ("", str(bundled)) if named else ("",):
+        plan = plan_run(GraphConfig(env="Swimmer-v5", mode="physical", attack="aril_a" if named else "",
+                                    attack_file=attack_file, search=2 if named else 0, record="off"))
+        meta = plan.metadata()
+        policy, expert = (policy_file(name, "Swimmer-v5") for name in ("dagger", "expert"))
+        assert meta["files"] == {
+            "adversary": {"path": "aril_ros/data/adversary/Swimmer-v5-physical.pt", "sha256": sha256(bundled)},
+            "policy": {"path": "aril_ros/data/dagger/Swimmer-v5.pt", "sha256": sha256(policy)},
+            "expert": {"path": "aril_ros/data/expert/Swimmer-v5.pt", "sha256": sha256(expert)}}
+        assert meta["attack_settings"] == {"attack": "aril_a", "eps": load_adversary(bundled).eps, "k": None,
+                                           "samples": None, "search": 2 if named else 0, "rescale": False, "seed": 0}
+
+
+def test_the_end_record_holds_each_episode_s_figures_as_its_steps_sum_to(recorded_run):
+    """The recorder takes them once, as it writes the steps; a reader (a graph round's collector) finds them there."""
+    log, summary, _ = recorded_run
+    run = read_run(log)
+    summed = []
+    for episode in np.unique(run.episodes):
+        rows = run.episodes == episode
+        summed.append((int(episode), sum(run.reward[rows].tolist()),  # step by step, as a run adds them up
+                       sum(((run.action[rows] - run.expert_action[rows]) ** 2).sum(1).tolist()),
+                       int(rows.sum()), float(np.abs(run.delta[rows]).max()), True))
+    recorded = [(e.episode, e.reward, e.squared_loss, e.steps, e.max_delta, e.done) for e in run.episode_stats]
+    assert recorded == summed and run.end["episodes_completed"] == 2
+    assert summary["returns"] == [round(e.reward, 3) for e in run.episode_stats]
+
+
+def test_a_log_from_before_the_end_record_held_figures_reads_and_says_it_has_none(recorded, tmp_path):
+    from aril_ros.runlog.layout import encoded
+
+    log, _ = recorded
+    meta, steps = steps_of(log)
+    writer = write_log(tmp_path / "older.mcap", meta, steps, close=False)
+    older = read_run(log).end
+    del older["episode_stats"]
+    writer._writer.add_metadata("aril_run_end", encoded(older))  # as an older aril_ros closed its logs
+    writer._writer.finish()
+    writer._file.close()
+    run = read_run(tmp_path / "older.mcap")
+    assert run.tags == read_run(log).tags
+    with pytest.raises(RunLogError, match="the log's end record has no episode_stats"):
+        run.episode_stats
+
+
 def test_the_recorder_reads_a_joint_state_s_values_in_place_as_deserialising_does():
     from rclpy.serialization import deserialize_message, serialize_message
     from sensor_msgs.msg import JointState
 
-    from aril_ros.mcap_log import cdr_joint_values
+    from aril_ros.runlog.cdr import joint_values
 
     rng = np.random.default_rng(0)
     for _ in range(300):  # names and arrays of every length, empty ones included, shift the CDR alignment
@@ -328,4 +431,4 @@ def test_the_recorder_reads_a_joint_state_s_values_in_place_as_deserialising_doe
         raw = serialize_message(msg)
         for field in ("position", "velocity", "effort"):
             expected = np.array(getattr(deserialize_message(raw, JointState), field), dtype=np.float64)
-            assert cdr_joint_values(raw, field).tobytes() == expected.tobytes()
+            assert joint_values(raw, field).tobytes() == expected.tobytes()

@@ -8,7 +8,7 @@ import zlib
 from mcap.reader import SeekingReader
 from mcap.writer import CompressionType, Writer
 
-from aril_ros.mcap_stream import MAGIC, ChunkStreamWriter
+from aril_ros.runlog.stream import MAGIC, ChunkStreamWriter
 
 
 def _write(writer, steps: int, flush, finish) -> None:

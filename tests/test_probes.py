@@ -10,10 +10,10 @@ import pytest
 from aril_ros import protocol as P
 from aril_ros.attacks import make_attack
 from aril_ros.envs import MujocoSim, layout_of
-from aril_ros.mcap_log import RunLogWriter, read_run, recover
 from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
+from aril_ros.runlog import RunLogWriter, read_run, recover
 from tests.test_graph import (assert_same_steps, policy_files, run_graph, run_with_external, simulator_and_prober,
                               summary_of)
 
@@ -157,7 +157,7 @@ def probe_messages(probe: ProbeTag, stamp: int) -> dict[str, bytes]:
 
 
 def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_keeps_them_apart(tmp_path):
-    from aril_ros_nodes.orchestrator import StepRecorder
+    from aril_ros.runlog import StepRecorder
 
     writer = RunLogWriter(tmp_path / "run.mcap", {"env": "test", "mode": "sensory", "eps": 0.0, "obs_names": ["x", "y"],
                                                   "zero_order": [True, False], "action_names": ["u"]})
@@ -177,7 +177,7 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
     for topic, raw in step_messages(*second, done=True).items():
         recorder.on_message(topic, raw)
     assert recorder.steps_written == 2 and recorder.probes_answered == 2 and recorder.episode_done
-    writer.close(interrupted=False, episodes_completed=1)
+    recorder.close(interrupted=False)
     complete = (tmp_path / "run.mcap").read_bytes()
     (tmp_path / "cut.mcap").write_bytes(complete[:-1])  # a closed log is not recovered: cut its final magic
     assert recover(tmp_path / "cut.mcap", tmp_path / "recovered.mcap").steps == 2
@@ -203,14 +203,13 @@ def test_queries_victim_says_which_attacks_ask_the_policy(tmp_path):
     assert queries_victim("aril_a", takes_actions) and queries_victim("aril_a", state_only, search=2)
     assert not queries_victim("aril_a", state_only)
     # so the orchestrator has the policy node wait for the attacker's probe client on action too
-    from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
+    from aril_ros_nodes.graph_config import GraphConfig, plan_run
 
     policy, expert = policy_files(tmp_path, "Swimmer-v5")
     for attack, listeners in (("random", 2), ("spsa", 3)):
-        run = Orchestrator(GraphConfig(env="Swimmer-v5", mode="sensory", attack=attack, policy=str(policy),
-                                       expert=str(expert), record="off"))
-        assert run.action_listeners == listeners
-        run.log_dir.rmdir()
+        run = plan_run(GraphConfig(env="Swimmer-v5", mode="sensory", attack=attack, policy=str(policy),
+                                   expert=str(expert), record="off"))
+        assert run.action_listeners == listeners and run.node_params()["policy"]["listeners"] == listeners
 
 
 def state_only_adversary(tmp_path):

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from aril_ros.mcap_log import read_run
-from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator, last_error_line
+from aril_ros.runlog import read_run
+from aril_ros_nodes.launcher import last_error_line
+from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
 from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, run_graph
 
 EPS_RANGE = "allowed 0 < eps <= 1.0"
@@ -40,8 +41,8 @@ DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
     ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a only"),
     ({"attack": "spsa", "rescale": True}, "rescale:=True is used by attack:=aril_a only, got attack:=spsa"),
     ({"samples": 4}, "samples:=4 is used by attack:=spsa only, got attack:=aril_a"),  # the default against DAgger
-    ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "the adversary was trained with eps=0.3, not eps:=0.5 "
-                                                           "(rescale:=true scales its perturbation)"),
+    ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "aril_ros/data/adversary/Swimmer-v5-sensory.pt was trained "
+                                                           "with eps=0.3, not eps=0.5 (rescale:=true scales it)"),
 ])
 def test_every_argument_is_checked_before_anything_starts(args, message):
     """The orchestrator's constructor refuses it (nodes start only in ``run``), for an in-process caller's
