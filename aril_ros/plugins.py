@@ -6,7 +6,7 @@ points in ``pyproject.toml``, so the arrows go one way only, from the ROS side t
 - ``aril_ros.commands``: subcommands of ``aril`` (an object with ``config``, ``run`` and ``summary``);
   ``replay`` is one.
 - ``aril_ros.collectors``: where ``train-learner source:=<name>`` collects a round and ``scorecard via:=<name>``
-  runs a cell (``graph``: through the ROS 2 nodes); a function ``collect(spec: aril_ros.dagger.RoundSpec) -> Path``
+  runs a cell (``graph``: through the ROS 2 nodes); a function ``collect(spec: aril_ros.collectors.RoundSpec) -> Path``
   that runs the episodes ``spec`` describes, records them to ``spec.record`` and returns that path: the library
   reads the run log back (:func:`aril_ros.runlog.read_run`: the steps, and each episode's figures).
 - ``aril_ros.victims``: ``train-adversary victim:=<name>`` attacks a policy reached elsewhere (``ros``:

@@ -1,6 +1,6 @@
 """A DAgger round through the ROS 2 graph: the ``aril_ros.collectors`` entry point ``graph``.
 
-``aril train-learner source:=graph`` hands :func:`collect_round` a :class:`aril_ros.dagger.RoundSpec`;
+``aril train-learner source:=graph`` hands :func:`collect_round` a :class:`aril_ros.collectors.RoundSpec`;
 the round runs here, in the caller's process, through the :class:`Orchestrator` (the nodes are its
 child processes, as with ``run_graph.py``), and its run log is what the library reads back: the steps, and each
 episode's figures as the recorder took them while the round ran (the log's end record,
@@ -19,7 +19,7 @@ def _to_stderr(*args, **kwargs) -> None:
 
 
 def collect_round(spec, log=_to_stderr) -> Path:
-    """Run the round ``spec`` (a :class:`aril_ros.dagger.RoundSpec`) through the graph, recorded to
+    """Run the round ``spec`` (a :class:`aril_ros.collectors.RoundSpec`) through the graph, recorded to
     ``spec.record``; return that path. The orchestrator's progress goes to ``log`` (stderr by
     default); a failed run raises a RuntimeError naming the round's log and the cause."""
     cfg = GraphConfig(env=spec.env, mode=spec.mode, attack=spec.attack, eps=spec.eps, policy=spec.policy,
