@@ -166,8 +166,8 @@ BATCHED_RULES: dict[type, type[ForwardRules]] = {
     HalfCheetahEnv: ForwardRules, SwimmerEnv: ForwardRules, HopperEnv: HopperRules, Walker2dEnv: Walker2dRules,
     AntEnv: AntRules,
 }
-"""The gymnasium v5 classes whose step :func:`~aril_ros.envs.sim.step_sims` computes itself (by exact class: a subclass may
-step otherwise)."""
+"""The gymnasium v5 classes whose step :func:`~aril_ros.envs.sim.step_sims` computes itself (by exact class: a
+subclass may step otherwise)."""
 
 
 @dataclass
