@@ -10,7 +10,8 @@ zero-order entries (``|delta| <= eps``):
 - ``sensory``: the policy sees ``s + delta`` (:func:`sensory_observation`); the simulator is untouched.
 - ``physical``: the simulator's zero-order state is moved by ``delta`` before the policy acts
   (:func:`physical_state` writes it into the full MuJoCo state), so the policy sees the observation
-  of the moved state and the dynamics continue from it.
+  of the moved state and the dynamics continue from it. A state that ``delta`` leaves unchanged is not
+  written (:func:`state_moved`), so a zero perturbation is no perturbation: the step is clean's.
 
 In every mode the expert labels ``s``, the true state before the attack, and the step's loss is the
 disagreement ``||a - pi_e(s)||^2`` (:func:`disagreement`). Episode ``e`` of a run with ``seed``
@@ -47,12 +48,21 @@ def sensory_observation(true_obs: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 def perturb_qpos(layout, qpos: np.ndarray, delta: np.ndarray) -> None:
     """A physical attack, in place: ``delta[position]`` added to ``qpos[qpos_offset:]`` (the entries the
-    observation's zero-order part shows). The engine applies it to MuJoCo's ``qpos`` directly.
+    observation's zero-order part shows), for one state or for rows of them (``[n, nq]`` and ``[n, obs_dim]``).
+    The engine applies it to MuJoCo's ``qpos``.
 
     A free joint's quaternion is left unnormalised: MuJoCo normalises it wherever it is used, so the
     bound ``|delta| <= eps`` holds exactly on what is written.
     """
-    qpos[layout.qpos_offset : layout.qpos_offset + layout.n_position] += delta[layout.position]
+    qpos[..., layout.qpos_offset : layout.qpos_offset + layout.n_position] += delta[..., layout.position]
+
+
+def state_moved(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """Whether a physical attack moved a state (per row of ``[..., n]`` arrays). A state it leaves unchanged is not
+    written: writing one has MuJoCo derive the bodies' positions from it anew (``mj_forward``), where a step
+    leaves them as they were one substep earlier, and Ant's reward reads them, so rewriting an unchanged state
+    would make a zero perturbation change the episode. Compared by value: ``-0.0 + 0.0`` moves nothing."""
+    return np.any(np.asarray(after) != np.asarray(before), axis=-1)
 
 
 def physical_state(layout, state: np.ndarray, delta: np.ndarray) -> np.ndarray:

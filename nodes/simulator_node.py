@@ -11,8 +11,9 @@ After ``sim/reset`` (seed, episode) it publishes step 0: ``sim/state``, ``sim/ph
 any other step is ignored with a warning, so no step is skipped or repeated; the answer to a probe,
 tagged ``"<episode>/<step>/probe/<k>"``, is ignored without one), publishes
 ``sim/reward`` for that step and then the next step's state, until the episode ends.
-``sim/set_state`` replaces the whole physical state at once (the physical attack) and publishes the
-``observation`` of the new state for the policy. A malformed action (wrong length, non-finite) stops
+``sim/set_state`` replaces the whole physical state at once (the physical attack; a state equal to the current one
+is not written, :meth:`aril_ros.envs.MujocoSim.set_state`, so a zero perturbation is no perturbation) and publishes
+the ``observation`` of the new state for the policy. A malformed action (wrong length, non-finite) stops
 the node with a clear error.
 
 Who it takes orders from is fixed at the first ``sim/reset``: the publisher on ``action`` then (one at most: the
