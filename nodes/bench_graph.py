@@ -23,7 +23,7 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ros_domain
-from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode
 from aril_ros.rollout import RolloutEngine
 from aril_ros_nodes import bare_chain
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
@@ -34,9 +34,9 @@ class GraphBenchConfig:
     """Arguments of ``python -m aril_ros_nodes.bench_graph``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)")
-    eps: float = arg(0.05, "attack budget")
-    bare_steps: int = arg(2000, "steps per bare-chain measurement")
+    steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)", low=1, high=10**9)
+    eps: float = arg(0.05, "attack budget", low=0.0, high=MAX_EPS)
+    bare_steps: int = arg(2000, "steps per bare-chain measurement", low=1, high=10**9)
     repeats: int = arg(1, "runs of the bare chain, the graph and the graph with recording per mode, in turn; each "
                           "cell is the best of them", low=1, high=20)
 

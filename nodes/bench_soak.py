@@ -39,10 +39,10 @@ class SoakConfig:
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
-    episodes: int = arg(50, "episodes per run", low=1)
-    horizon: int = arg(1000, "steps per episode", low=1)
+    episodes: int = arg(50, "episodes per run", low=1, high=100_000)
+    horizon: int = arg(1000, "steps per episode", low=1, high=1_000_000)
     runs: int = arg(3, "runs at once", low=1, high=20)
-    sample: float = arg(1.0, "seconds between memory readings", low=0.1)
+    sample: float = arg(1.0, "seconds between memory readings", low=0.1, high=3600.0)
 
 
 @dataclass

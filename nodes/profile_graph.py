@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from aril_ros.args import arg, module_config
-from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode
 from aril_ros_nodes.bench_graph import bare_chain_steps_per_s
 from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
 
@@ -32,8 +32,8 @@ class ProfileConfig:
     """Arguments of ``python -m aril_ros_nodes.profile_graph``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id (the bare chain steps HalfCheetah-v5 whatever it is)")
-    steps: int = arg(2000, "steps of the window each figure is measured over", low=100)
-    eps: float = arg(0.05, "attack budget")
+    steps: int = arg(2000, "steps of the window each figure is measured over", low=100, high=10**9)
+    eps: float = arg(0.05, "attack budget", low=0.0, high=MAX_EPS)
 
 
 def process_name(pid: int, cmdline: str) -> str | None:
