@@ -1,8 +1,8 @@
 """Issue 16: what one more subscriber on every step topic costs the bare rclpy chain (the graph's recorder hears all
-of a step's messages; the bare chain has no recorder). Runs the bare chain (:mod:`aril_ros_nodes.bare_chain`) alone
+of a step's messages; the bare chain has no recorder). Runs the bare chain (:mod:`benchmarks.graph.bare_chain`) alone
 and with a fifth process subscribing raw to its four topics, in turn, ``repeats`` times; prints steps/s of each.
 
-    .venv/bin/python benchmarks/scripts/bare_chain_listener.py 3000 2
+    .venv/bin/python -m benchmarks.scripts.bare_chain_listener 3000 2
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import rclpy
 from rclpy.experimental import EventsExecutor
 from sensor_msgs.msg import JointState
 from aril_ros_nodes.common import STEP_QOS
-from aril_ros_nodes.bare_chain import TOPICS
+from benchmarks.graph.bare_chain import TOPICS
 rclpy.init()
 node = rclpy.create_node("listener")
 for topic in {"state", "action"} | {out for _, out in TOPICS.values()}:
@@ -34,8 +34,8 @@ except KeyboardInterrupt:
 
 def measure(steps: int, listener: bool) -> float:
     from aril_ros.protocol import ros_domain
-    from aril_ros_nodes import bare_chain
     from aril_ros_nodes.orchestrator import allocate_domain
+    from benchmarks.graph import bare_chain
 
     domain, lock = allocate_domain("auto")
     try:

@@ -1,5 +1,5 @@
 """Issue 16: the most any redesign of the recorder can give the graph. Runs, in turn, the bare rclpy chain
-(:mod:`aril_ros_nodes.bare_chain`), the graph as it is, and the graph whose orchestrator drops every subscription
+(:mod:`benchmarks.graph.bare_chain`), the graph as it is, and the graph whose orchestrator drops every subscription
 but ``sim/reward`` once the graph is connected (it still counts steps and returns from the rewards, so the episodes
 end as usual), in sensory and physical mode; prints steps/s and each graph's ratio to the bare chain.
 
@@ -8,7 +8,7 @@ per step it needs besides the reward. Recording in the simulator's process inste
 the deliveries of the other nodes' topics, so the ratio of the graph without a recorder bounds that design from
 above. Only this process's orchestrator is changed (patched below); the four nodes run as in every run.
 
-    .venv/bin/python benchmarks/scripts/graph_without_recorder.py 4000 2
+    .venv/bin/python -m benchmarks.scripts.graph_without_recorder 4000 2
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def main(argv):
     steps, repeats = (int(argv[0]) if argv else 4000), (int(argv[1]) if len(argv) > 1 else 2)
     torch.set_num_threads(1)
     from aril_ros_nodes import orchestrator
-    from aril_ros_nodes.bench_graph import GraphBenchConfig, bare_chain_steps_per_s, graph_steps_per_s
+    from benchmarks.graph.bench_graph import GraphBenchConfig, bare_chain_steps_per_s, graph_steps_per_s
 
     cfg = GraphBenchConfig(steps=steps)
     as_is = (orchestrator.GraphClient.__init__, orchestrator.GraphClient.admit)
