@@ -67,6 +67,7 @@ def test_aril_refuses_an_out_of_range_number_in_one_line(argv, message, capsys):
     assert (out, err) == ("", message + "\n")
 
 
+@pytest.mark.slow
 def test_aril_eval_episodes_0_in_a_fresh_process_is_one_line_and_exit_2():
     """The issue's case: it ended in a ZeroDivisionError traceback after numpy warnings."""
     done = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "env:=Swimmer-v5", "episodes:=0"],

@@ -29,7 +29,8 @@ def argv_of(pid: int) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.parametrize("after_start", [0.25, 0.5])
 def test_ctrl_c_before_the_run_began_is_one_line_and_exit_130(after_start):
-    base_python = os.path.realpath(sys.executable)  # the venv's interpreter outside the venv: no pyvenv.cfg beside it
+    base_python = str(Path(sys.base_prefix) / "bin" / f"python{sys.version_info.major}.{sys.version_info.minor}")
+    assert Path(base_python).is_file() and base_python != VENV_PYTHON  # the interpreter the venv was made from
     started = time.monotonic()
     proc = subprocess.Popen([base_python, str(ROOT / "run_graph.py"), "mode:=sensory", "env:=Swimmer-v5",
                              "episodes:=1", "horizon:=10", "record:=off"], cwd=ROOT, stdout=subprocess.PIPE,

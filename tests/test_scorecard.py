@@ -24,6 +24,7 @@ def small_card(tmp_path_factory):
     return cfg, out, page, lines
 
 
+@pytest.mark.slow
 def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small_card):
     cfg, out, _, _ = small_card
     card = json.loads((out / "scorecard.json").read_text())
@@ -41,6 +42,7 @@ def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small
     assert [round(e["return"], 3) for e in sensory["clean"]["episodes"]] == clean["returns"]
 
 
+@pytest.mark.slow
 def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_card):
     _, out, page, _ = small_card
     sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
@@ -59,6 +61,7 @@ def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_car
     assert (out / "sweep-sensory.png").stat().st_size > 10_000 and (out / "adversary-sensory.pt").is_file()
 
 
+@pytest.mark.slow
 def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp_path):
     cfg, out, _, lines = small_card
     assert any("training ARIL-A against" in line for line in lines)
@@ -100,6 +103,7 @@ def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_nam
     assert victim_of("aril", "Swimmer-v5", "physical") == str(package)
 
 
+@pytest.mark.slow
 def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_file(small_card, tmp_path):
     """The bundled DAgger learner run as the user's own node: every cell through the graph, ARIL-A trained
     against the node's answers; the graph is bit-exact to the engine, so the figures are the engine's (random runs
@@ -126,6 +130,8 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     assert any("training ARIL-A against ros" in line for line in lines)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("ray")  # with the other Ray tests (tests/test_sweep.py)
 def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_scores_it(small_card, tmp_path):
     """via:=graph: every cell a run of the graph with a policy node serving the file, each a sweep task of
     GRAPH_RUN_CPUS. On two nodes of that many CPUs, the first two runs go one to each node at once (each in a ROS
