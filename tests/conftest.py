@@ -21,7 +21,6 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ["ARIL_DATA"] = tempfile.mkdtemp(prefix="aril_data-tests-")
 
 from aril_ros.policy import MLPPolicy, meta_for_env  # noqa: E402
-from aril_ros_nodes.orchestrator import GraphError, allocate_domain  # noqa: E402
 
 RUN_DOMAINS = range(1, 102)
 """The ids graph runs of the tests take (the test processes' own are 215-232)."""
@@ -30,6 +29,8 @@ RUN_DOMAINS = range(1, 102)
 def free_domain() -> int:
     """A domain no other aril_ros run holds; released so run_graph.py (domain:=N) can take it. Each worker takes
     from its own share of the ids (every WORKERS-th), so two workers never pick one between release and take."""
+    from aril_ros_nodes.orchestrator import GraphError, allocate_domain
+
     for domain in RUN_DOMAINS[WORKER::WORKERS]:
         try:
             _, lock = allocate_domain(str(domain))
