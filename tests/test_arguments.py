@@ -74,3 +74,12 @@ def test_aril_eval_episodes_0_in_a_fresh_process_is_one_line_and_exit_2():
                           capture_output=True, text=True, timeout=120)
     assert (done.returncode, done.stdout) == (2, "")
     assert done.stderr == "aril eval: error: episodes:=0 is out of range: allowed 1..100000\n"
+
+
+@pytest.mark.slow
+def test_a_benchmark_module_refuses_an_out_of_range_number_in_one_line():
+    done = subprocess.run([sys.executable, "-m", "aril_ros.benchmarks.engine", "steps:=0"], capture_output=True,
+                          text=True, timeout=120)
+    assert (done.returncode, done.stdout) == (2, "")
+    assert done.stderr == ("python -m aril_ros.benchmarks.engine: error: steps:=0 is out of range: "
+                           "allowed 1..1000000000\n")
