@@ -1,12 +1,22 @@
 #!/usr/bin/env python3
-"""Run the test suite: ``python run_tests.py [pytest arguments]``. Installs what it needs first."""
+"""Run the test suite: ``python run_tests.py [pytest arguments]``. Installs what it needs first.
+
+The suite runs on two workers (pytest-xdist, ``-n 2 --dist loadgroup``: tests of one ``xdist_group`` share a
+worker, e.g. the Ray-cluster tests); other arguments are added to it, and one of their own ``-n`` replaces it
+(``-n 0``: one process).
+``python run_tests.py -m "not slow"`` is the quick loop: the tests under ~3 s each.
+"""
 import sys
 
 from bootstrap import ensure_venv
+
+WORKERS = ["-n", "2", "--dist", "loadgroup"]
 
 if __name__ == "__main__":
     ensure_venv()
     import pytest
 
-    code = pytest.main(sys.argv[1:] or ["-q", "tests"])
+    args = sys.argv[1:]
+    own_workers = any(a.startswith(("-n", "--numprocesses")) for a in args)
+    code = pytest.main(["-q", *args] if own_workers else ["-q", *WORKERS, *args])
     sys.exit(0 if code == pytest.ExitCode.OK else int(code))

@@ -36,7 +36,7 @@ from .args import arg
 from .envs import layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .provenance import stamp
-from .registry import ATTACKED_MODES, DEFAULT_ENV, check_name, for_task
+from .registry import ATTACKED_MODES, DEFAULT_ENV, MAX_EPS, check_name, for_task
 from .rollout import SimBatch
 from .step import disagreement
 from .sweep import Produced, digest_of, run_tasks, shipped
@@ -66,39 +66,40 @@ class AdversaryConfig:
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     mode: str = arg("sensory", "sensory or physical")
-    eps: float = arg(0.05, "L-infinity budget on the zero-order entries")
+    eps: float = arg(0.05, "L-infinity budget on the zero-order entries", low=0.0, high=MAX_EPS)
     victim: str = arg("expert", "the attacked policy: a bundled name, a policy file, or ros (a running policy node "
                                 "on observation -> action in this ROS_DOMAIN_ID, through the installed ROS side); "
                                 "only its actions are used")
     expert: str = arg("expert", "the expert whose action on the true state defines the loss")
-    steps: int = arg(1_000_000, "environment steps of training (the paper: 1e6 per attack stage)")
-    n_envs: int = arg(16, "simulators run side by side")
-    rollout: int = arg(256, "steps per simulator between PPO updates")
-    epochs: int = arg(10, "PPO epochs per update")
-    minibatch: int = arg(1024, "samples per PPO minibatch")
-    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
-    gamma: float = arg(0.99, "discount of the adversary's return")
-    gae_lambda: float = arg(0.95, "GAE lambda")
-    clip: float = arg(0.2, "PPO clip range (Table 3)")
-    ent_coef: float = arg(0.01, "entropy bonus (Table 3)")
-    vf_coef: float = arg(0.5, "value loss weight (Table 3)")
-    max_grad_norm: float = arg(0.5, "gradient norm clip")
-    hidden: int = arg(64, "width of the two hidden layers")
+    steps: int = arg(1_000_000, "environment steps of training (the paper: 1e6 per attack stage)", low=0, high=10**9)
+    n_envs: int = arg(16, "simulators run side by side", low=1, high=1024)
+    rollout: int = arg(256, "steps per simulator between PPO updates", low=1, high=1_000_000)
+    epochs: int = arg(10, "PPO epochs per update", low=0, high=10_000)
+    minibatch: int = arg(1024, "samples per PPO minibatch", low=1, high=10**7)
+    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)", low=0.0, high=1.0)
+    gamma: float = arg(0.99, "discount of the adversary's return", low=0.0, high=1.0)
+    gae_lambda: float = arg(0.95, "GAE lambda", low=0.0, high=1.0)
+    clip: float = arg(0.2, "PPO clip range (Table 3)", low=0.0, high=1.0)
+    ent_coef: float = arg(0.01, "entropy bonus (Table 3)", low=0.0, high=10.0)
+    vf_coef: float = arg(0.5, "value loss weight (Table 3)", low=0.0, high=10.0)
+    max_grad_norm: float = arg(0.5, "gradient norm clip", low=0.0, high=1000.0)
+    hidden: int = arg(64, "width of the two hidden layers", low=1, high=4096)
     policy: str = arg("categorical", "categorical: one of {-eps, 0, +eps} per zero-order entry (the corners of the "
                                      "L-infinity box, where a one-step attack's optimum lies); gaussian: a Normal "
                                      "around eps*tanh(net), clipped to the box (the adversaries made before)")
     inputs: str = arg("state+actions", "state: the true observation alone; state+actions: also the victim's action "
                                        "on it unperturbed and the expert's (queried answers, never weights)")
-    warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation")
+    warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation",
+                      low=1, high=1_000_000)
     norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
     baseline: bool = arg(True, "value = the victim's unperturbed disagreement at the state (computed exactly) + a "
                               "learned remainder, instead of all learned (a control variate: the objective is the same)")
     seed: int = arg(0, "seed of the initial weights and the sampling; the env resets take the seed's training block "
-                       "(aril_ros.seeds.adversary_training)")
+                       "(aril_ros.seeds.adversary_training)", low=0, high=2**31 - 1)
     init: str = arg("", "start from this adversary file (same env, mode, eps and width; its input scaling is kept) "
                         "instead of fresh weights: ARIL's warm start from the previous round's adversary")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
-    threads: int = arg(1, "torch threads")
+    threads: int = arg(1, "torch threads", low=1, high=256)
 
 
 def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import shlex
+import sys
 import typing
 
 
@@ -81,11 +82,16 @@ def usage(cls, prog: str, summary: str) -> str:
 
 def module_config(cls, prog: str, doc: str, argv: list[str]):
     """A ``python -m`` module's arguments: ``cls`` from ``argv``, or None once the usage is printed (``--help``,
-    ``-h``; its summary is the first line of the module's ``doc``)."""
+    ``-h``; its summary is the first line of the module's ``doc``). A refused argument ends the process with one
+    line and exit 2, as ``aril`` does."""
     if "--help" in argv or "-h" in argv:
         print(usage(cls, prog, doc.strip().splitlines()[0]))
         return None
-    return parse_args(cls, argv)
+    try:
+        return parse_args(cls, argv)
+    except ArgumentError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def comma_list(text: str) -> list[str]:

@@ -11,7 +11,7 @@ from .args import arg
 from .attacks import QueryAttack, make_attack
 from .envs import HORIZON, layout_of
 from .policy import resolve_policy
-from .registry import ATTACKS, DEFAULT_ENV, MODES, attack_budget, choose_attack, for_task
+from .registry import ATTACKS, DEFAULT_ENV, MAX_EPS, MODES, attack_budget, choose_attack, for_task
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
 from .sweep import run_tasks, shipped
@@ -29,18 +29,20 @@ class EvalConfig:
     attack: str = arg("", f"one of {', '.join(ATTACKS)} (default: none when clean; attacked, the strongest bundled "
                           "for the policy: the ARIL-A trained against it, random where none is bundled)")
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
-                          "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)")
-    k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)")
-    samples: int = arg(0, "spsa: random directions per iteration, each queried at +- (0: 8)")
+                          "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)",
+                     low=0.0, high=MAX_EPS)
+    k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)", low=0, high=1000)
+    samples: int = arg(0, "spsa: random directions per iteration, each queried at +- (0: 8)", low=0, high=1000)
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
-                         "it ranks highest), the victim queried on all, the most damaging applied (0: no search)")
+                         "it ranks highest), the victim queried on all, the most damaging applied (0: no search)",
+                      low=0, high=1000)
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its own: scale its perturbation by eps / its eps")
-    episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)")
-    seed: int = arg(seeds.USER, "seed of the first episode and of the attack noise")
-    n_envs: int = arg(32, "simulators run side by side (does not change the results)")
-    horizon: int = arg(HORIZON, "steps per episode")
-    threads: int = arg(1, "torch threads (more only slows these small networks down)")
+    episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)", low=1, high=100_000)
+    seed: int = arg(seeds.USER, "seed of the first episode and of the attack noise", low=0, high=2**31 - 1)
+    n_envs: int = arg(32, "simulators run side by side (does not change the results)", low=1, high=1024)
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
+    threads: int = arg(1, "torch threads (more only slows these small networks down)", low=1, high=256)
 
 
 def evaluate(cfg: EvalConfig, progress=None) -> dict:

@@ -81,11 +81,12 @@ class CalibrationConfig:
     policy: str = arg(DEFAULT_POLICY, "the victim (the learner under attack): a bundled name or a policy file")
     expert: str = arg("expert", "the expert")
     grid: str = arg("0.002,0.005,0.01,0.02,0.05,0.1,0.2", "comma-separated eps values to try")
-    max_drop: float = arg(0.4, "the largest tolerated FGSM drop from clean return (the paper: 40%)")
-    episodes: int = arg(10, "deterministic episodes per cell")
-    seed: int = arg(seeds.CALIBRATION, "env seed of the first episode")
-    horizon: int = arg(HORIZON, "steps per episode")
-    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    max_drop: float = arg(0.4, "the largest tolerated FGSM drop from clean return (the paper: 40%)", low=0.0, high=1.0)
+    episodes: int = arg(10, "deterministic episodes per cell", low=1, high=100_000)
+    seed: int = arg(seeds.CALIBRATION, "env seed of the first episode", low=0, high=2**31 - 1)
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)",
+                       low=1, high=1024)
     address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (.json and .md are written); unset: the user's calibration, "
                        "eps_calibration.{json,md} in the user data folder ($ARIL_DATA), which eps:=0 reads where "
@@ -182,15 +183,17 @@ class AttackTableConfig:
     policy: str = arg(DEFAULT_POLICY, "the victim: a bundled name or a policy file")
     expert: str = arg("expert", "the expert")
     calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration, then the user's)")
-    episodes: int = arg(20, "deterministic episodes per cell")
-    seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)")
-    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
-    search: int = arg(16, "candidates of ARIL-A's query-time search in its own row (0: no such row)")
-    adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet")
+    episodes: int = arg(20, "deterministic episodes per cell", low=1, high=100_000)
+    seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)",
+                    low=0, high=2**31 - 1)
+    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)", low=0, high=1000)
+    search: int = arg(16, "candidates of ARIL-A's query-time search in its own row (0: no such row)", low=0, high=1000)
+    adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet", low=1, high=10**9)
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")
-    horizon: int = arg(HORIZON, "steps per episode")
-    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)",
+                       low=1, high=1024)
     address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (default: results/attacks_<mode>)")
 
@@ -284,10 +287,11 @@ class DefenseTableConfig:
     defenses: str = arg(",".join(DEFENSES), "comma-separated bundled learners (aril and dr: the ones of mode:=)")
     expert: str = arg("expert", "the expert")
     calibration: str = arg("", "where the eps per env and mode come from (unset: the bundled calibration, then the user's)")
-    episodes: int = arg(20, "deterministic episodes per cell")
-    seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)")
-    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)")
-    adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense")
+    episodes: int = arg(20, "deterministic episodes per cell", low=1, high=100_000)
+    seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)",
+                    low=0, high=2**31 - 1)
+    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)", low=0, high=1000)
+    adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense", low=1, high=10**9)
     adversary_seeds: int = arg(1, "ARIL-As trained against each defense, with training seeds 0, 1, ...: the cell's "
                                   "ARIL-A is the strongest of them (one adversary's seed can decide more than its "
                                   "training, results/aril_a_tuning.md)", low=1, high=10)
@@ -295,8 +299,9 @@ class DefenseTableConfig:
                                  "aril_ros/data/defense-adversary/; seed k > 0's name ends in -seed<k>); reused when "
                                  "they exist with the same eps")
     retrain: bool = arg(False, "train the adversaries even if they exist")
-    horizon: int = arg(HORIZON, "steps per episode")
-    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)")
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
+    workers: int = arg(2, "CPUs of the local Ray its evaluations run on as tasks (1: one after the other in this process)",
+                       low=1, high=1024)
     address: str = arg("", "run the evaluations on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "output path without suffix (default: results/defenses_<mode>)")
 

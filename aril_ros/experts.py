@@ -75,15 +75,17 @@ class ExpertConfig:
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     algo: str = arg("sac", "sac (off-policy, sample-efficient) or ppo (on-policy, cheap per step)")
-    steps: int = arg(300_000, "environment steps of training")
-    seed: int = arg(0, "seed of the algorithm and of its env")
+    steps: int = arg(300_000, "environment steps of training", low=1, high=10**9)
+    seed: int = arg(0, "seed of the algorithm and of its env", low=0, high=2**31 - 1)
     hidden: int = arg(0, "width of the actor's and the critic's two hidden layers (0: stable-baselines3's default, "
-                         "256 for sac and 64 for ppo)", low=0)
-    eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps")
-    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
+                         "256 for sac and 64 for ppo)", low=0, high=4096)
+    eval_every: int = arg(25_000, "evaluate (and keep if best) the exported actor every this many steps",
+                          low=1, high=10**9)
+    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)",
+                             low=1, high=100_000)
     out: str = arg("", "where to write the expert (default: expert/<env>.pt in the user data folder, $ARIL_DATA, "
                        "by default ~/.local/share/aril_ros; then expert:=expert finds it where none is bundled)")
-    threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)")
+    threads: int = arg(1, "torch threads (1 lets two trainings share a 2-core machine)", low=1, high=256)
     checkpoint: str = arg("", "a folder to save the training state to at every evaluation (resume:= takes it)")
     keep_buffer: bool = arg(False, "sac: save the replay buffer with the checkpoint too (large; same-machine resumes)")
     resume: str = arg("", "continue from a checkpoint folder up to steps:= in all (without its replay buffer, "

@@ -35,18 +35,21 @@ class GailConfig:
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the demonstrator: a bundled name or a policy file")
-    demos: int = arg(10, f"clean expert demonstrations (1000 steps each, env seeds {seeds.GAIL_DEMOS}...)")
-    steps: int = arg(1_000_000, "generator (PPO) environment steps")
-    hidden: int = arg(64, "width of the generator's (the learner's) two hidden layers, and its critic's", low=1)
-    disc_hidden: int = arg(64, "width of the discriminator's two hidden layers")
-    disc_lr: float = arg(3e-4, "discriminator Adam learning rate")
-    disc_epochs: int = arg(2, "discriminator passes over each rollout")
-    disc_batch: int = arg(256, "discriminator minibatch size")
-    seed: int = arg(0, "seed of PPO, its env and the discriminator")
-    eval_every: int = arg(50_000, "evaluate (and keep if best) the generator every this many steps")
-    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)")
+    demos: int = arg(10, f"clean expert demonstrations (1000 steps each, env seeds {seeds.GAIL_DEMOS}...)",
+                     low=1, high=100_000)
+    steps: int = arg(1_000_000, "generator (PPO) environment steps", low=0, high=10**9)
+    hidden: int = arg(64, "width of the generator's (the learner's) two hidden layers, and its critic's",
+                      low=1, high=4096)
+    disc_hidden: int = arg(64, "width of the discriminator's two hidden layers", low=1, high=4096)
+    disc_lr: float = arg(3e-4, "discriminator Adam learning rate", low=0.0, high=1.0)
+    disc_epochs: int = arg(2, "discriminator passes over each rollout", low=0, high=100_000)
+    disc_batch: int = arg(256, "discriminator minibatch size", low=1, high=10**7)
+    seed: int = arg(0, "seed of PPO, its env and the discriminator", low=0, high=2**31 - 1)
+    eval_every: int = arg(50_000, "evaluate (and keep if best) the generator every this many steps", low=1, high=10**9)
+    eval_episodes: int = arg(5, f"deterministic episodes per evaluation (env seeds {seeds.SELECTION}...)",
+                             low=1, high=100_000)
     out: str = arg("", "where to write the policy (default runs/gail-<env>.pt)")
-    threads: int = arg(1, "torch threads")
+    threads: int = arg(1, "torch threads", low=1, high=256)
 
 
 class Discriminator(nn.Module):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from . import seeds
 from .args import arg, comma_list
-from .registry import ATTACKED_MODES, DEFAULT_ENV, calibrated_eps
+from .registry import ATTACKED_MODES, DEFAULT_ENV, MAX_EPS, calibrated_eps
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 ROUND_ATTACKS = ("spsa", "random")
@@ -31,34 +31,36 @@ class ImitationConfig:
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the expert that labels the true states: a bundled name or a policy file")
     mode: str = arg("sensory", "dr and aril: sensory or physical perturbations (dagger and dart collect clean)")
-    eps: float = arg(0.0, "dr and aril: the budget (0: the calibrated eps for env and mode, bundled with aril_ros)")
-    rounds: int = arg(10, "rounds of collecting and refitting after round 0 (expert demonstrations)")
-    episodes: int = arg(5, "episodes collected per round (1000 steps each)")
+    eps: float = arg(0.0, "dr and aril: the budget (0: the calibrated eps for env and mode, bundled with aril_ros)",
+                     low=0.0, high=MAX_EPS)
+    rounds: int = arg(10, "rounds of collecting and refitting after round 0 (expert demonstrations)", low=0, high=1000)
+    episodes: int = arg(5, "episodes collected per round (1000 steps each)", low=1, high=100_000)
 
 
 @dataclass
 class FitConfig:
     """How each learner is fitted on the aggregated data set."""
 
-    hidden: int = arg(64, "width of the learner's two hidden layers")
-    epochs: int = arg(20, "passes over the aggregated data per fit")
-    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
-    batch: int = arg(256, "minibatch size")
+    hidden: int = arg(64, "width of the learner's two hidden layers", low=1, high=4096)
+    epochs: int = arg(20, "passes over the aggregated data per fit", low=0, high=100_000)
+    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)", low=0.0, high=1.0)
+    batch: int = arg(256, "minibatch size", low=1, high=10**7)
 
 
 @dataclass
 class RoundAdversaryConfig:
     """ARIL: how each round's adversary f_t is made against pi_t (:mod:`aril_ros.aril_rounds`)."""
 
-    adversary_steps: int = arg(300_000, "aril: PPO steps of each round's adversary")
+    adversary_steps: int = arg(300_000, "aril: PPO steps of each round's adversary", low=0, high=10**9)
     warm_start: bool = arg(False, "aril: each round's adversary starts from the previous round's (f_{t-1}) instead of "
                                   "fresh weights, so it keeps up with a learner that changes a little per round")
     adversary_seeds: int = arg(1, "aril: f_t is the strongest of this many adversaries trained against pi_t with "
                                   "different seeds (the largest objective at the end of its training): a closer "
-                                  "argmax over adversaries, since one PPO run may miss the exploit another finds")
+                                  "argmax over adversaries, since one PPO run may miss the exploit another finds",
+                                  low=1, high=100)
     workers: int = arg(1, "aril with adversary_seeds:=N: the candidates trained side by side on this many CPUs of a "
                           "local Ray (1: one after the other in this process); the files are the same either way",
-                       low=1)
+                       low=1, high=1024)
     address: str = arg("", "aril: train the candidates on this Ray cluster instead (<head ip>:6379, or auto)")
     round_attacks: str = arg("", "aril: black-box attacks (comma-separated: spsa, random) that compete with the "
                                  "trained adversaries for f_t; then every candidate is judged by pi_t's mean episode "
@@ -72,12 +74,12 @@ class LearnerConfig(RoundAdversaryConfig, FitConfig, ImitationConfig):
     """Arguments of ``aril train-learner``."""
 
     eval_episodes: int = arg(5, "dr and aril: episodes of each learner's clean evaluation "
-                                f"(env seeds {seeds.LEARNER_EVAL}...)")
+                                f"(env seeds {seeds.LEARNER_EVAL}...)", low=1, high=100_000)
     seed: int = arg(0, "seed of the fits, noise and adversaries; the rounds collect in the seed's training block "
-                       "(aril_ros.seeds.collection(seed, round))")
+                       "(aril_ros.seeds.collection(seed, round))", low=0, high=999)
     run_dir: str = arg("", "the run directory (default runs/<algorithm>-<env>[-<mode>]); an existing one is resumed")
     out: str = arg("", "where to write the selected policy (default runs/<algorithm>-<env>[-<mode>].pt)")
-    threads: int = arg(1, "torch threads")
+    threads: int = arg(1, "torch threads", low=1, high=256)
     source: str = arg("inprocess", "where rounds are collected: inprocess (the engine, fast) or graph (through the "
                                    "ROS 2 nodes of the installed ROS side, recorded to <run_dir>/round-<r>.mcap and "
                                    "loaded back); the same seeds give the same data set")

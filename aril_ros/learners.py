@@ -53,13 +53,13 @@ class BCConfig:
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the demonstrator: a bundled name or a policy file")
-    episodes: int = arg(10, "clean expert demonstrations (1000 steps each)")
-    hidden: int = arg(64, "width of the two hidden layers")
-    epochs: int = arg(30, "passes over the demonstrations")
-    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)")
-    batch: int = arg(256, "minibatch size")
+    episodes: int = arg(10, "clean expert demonstrations (1000 steps each)", low=1, high=100_000)
+    hidden: int = arg(64, "width of the two hidden layers", low=1, high=4096)
+    epochs: int = arg(30, "passes over the demonstrations", low=0, high=100_000)
+    lr: float = arg(1e-3, "Adam learning rate (the paper's appendix)", low=0.0, high=1.0)
+    batch: int = arg(256, "minibatch size", low=1, high=10**7)
     seed: int = arg(0, "seed of the weights and the batches; the demonstrations take the seed's training "
-                       "block (aril_ros.seeds.collection(seed, 0))")
+                       "block (aril_ros.seeds.collection(seed, 0))", low=0, high=2**31 - 1)
     out: str = arg("", "where to write the policy (default: bc/<env>.pt in the user data folder, $ARIL_DATA)")
 
 

@@ -44,14 +44,15 @@ class OnboardConfig:
     """Arguments of ``aril onboard``."""
 
     env: str = arg(DEFAULT_ENV, "the gymnasium MuJoCo env id to onboard")
-    expert_steps: int = arg(1_000_000, "SAC steps of the expert (rl-baselines3-zoo trains Hopper and Walker2d 1M)")
+    expert_steps: int = arg(1_000_000, "SAC steps of the expert (rl-baselines3-zoo trains Hopper and Walker2d 1M)",
+                            low=1, high=10**9)
     eval_every: int = arg(25_000, "evaluate the expert's actor every this many steps (the best is kept, the training "
-                                  "state saved)")
-    rounds: int = arg(10, "DAgger rounds after the expert's demonstrations")
-    episodes: int = arg(5, "episodes collected per DAgger round")
-    calibration_episodes: int = arg(10, "episodes per eps tried in the calibration")
-    final_episodes: int = arg(50, "deterministic episodes of the expert's final evaluation")
-    seed: int = arg(0, "seed of the expert's and the learner's training")
+                                  "state saved)", low=1, high=10**9)
+    rounds: int = arg(10, "DAgger rounds after the expert's demonstrations", low=1, high=1000)
+    episodes: int = arg(5, "episodes collected per DAgger round", low=1, high=100_000)
+    calibration_episodes: int = arg(10, "episodes per eps tried in the calibration", low=1, high=100_000)
+    final_episodes: int = arg(50, "deterministic episodes of the expert's final evaluation", low=1, high=100_000)
+    seed: int = arg(0, "seed of the expert's and the learner's training", low=0, high=999)
 
 
 def onboard(cfg: OnboardConfig, log=print) -> dict:

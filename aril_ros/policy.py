@@ -202,11 +202,20 @@ def save_weights(module: nn.Module, meta: dict, path: str | Path, kind: str = "p
     return write_atomically(path, lambda partial: torch.save(blob, partial))
 
 
+ZIP_MAGIC = b"PK\x03\x04"
+"""The first bytes of a zip archive, which every ``torch.save`` file is (a cut-short one too)."""
+
+
 def load_weights(path: str | Path, kind: str = "policy") -> tuple[dict, dict]:
     """``(meta, state_dict)`` of a file written by :func:`save_weights`, or a clear PolicyFileError."""
     path = Path(path)
     if not path.is_file():
         raise PolicyFileError(f"{path}: no such {kind} file")
+    with path.open("rb") as head:
+        archive = head.read(len(ZIP_MAGIC)) == ZIP_MAGIC
+    if not archive:  # torch.save writes a zip: other bytes would reach torch's legacy unpickler, whose refusal reads
+        # as pickled code "refused for safety", a verdict on a file that may hold no pickle at all
+        raise PolicyFileError(f"{path}: not an aril_ros {kind} file: not a torch archive")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:

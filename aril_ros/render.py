@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .args import arg
-from .registry import ATTACKS, DEFAULT_ENV
+from .registry import ATTACKS, DEFAULT_ENV, MAX_EPS
 
 class RenderError(RuntimeError):
     """No offscreen GL backend: says which Debian packages give one."""
@@ -48,13 +48,13 @@ class RenderConfig:
                       "comma-separated policy:attack panels; policy is a bundled name (aril and dr: the one of "
                       f"mode:=), attack one of {', '.join(ATTACKS)} (aril_a: the bundled ARIL-A trained against "
                       "that bundled policy)")
-    eps: float = arg(0.0, "attack budget (0: the calibrated one for env and mode)")
-    steps: int = arg(300, "control steps of the episode")
-    every: int = arg(3, "render every this many control steps")
-    fps: int = arg(20, "frames per second of the GIF")
-    width: int = arg(320, "panel width in pixels")
-    height: int = arg(240, "panel height in pixels")
-    seed: int = arg(0, "env seed of the episode (and of the attack noise)")
+    eps: float = arg(0.0, "attack budget (0: the calibrated one for env and mode)", low=0.0, high=MAX_EPS)
+    steps: int = arg(300, "control steps of the episode", low=1, high=100_000)
+    every: int = arg(3, "render every this many control steps", low=1, high=1000)
+    fps: int = arg(20, "frames per second of the GIF", low=1, high=100)
+    width: int = arg(320, "panel width in pixels", low=16, high=4096)
+    height: int = arg(240, "panel height in pixels", low=16, high=4096)
+    seed: int = arg(0, "env seed of the episode (and of the attack noise)", low=0, high=2**31 - 1)
     out: str = arg("", "the GIF (default runs/render-<env>-<mode>.gif)")
 
 

@@ -36,6 +36,7 @@ from .registry import (
     ATTACKED_MODES,
     DEFAULT_ENV,
     DEFAULT_POLICY,
+    MAX_EPS,
     calibrated_eps,
     check_name,
     for_task,
@@ -55,15 +56,17 @@ class ScanConfig:
     mode: str = arg("sensory", "sensory or physical")
     victim: str = arg(DEFAULT_POLICY, "the attacked policy: a bundled name or a policy file")
     expert: str = arg("expert", "the expert")
-    eps: float = arg(0.0, "the budget (0: the calibrated one for env and mode)")
+    eps: float = arg(0.0, "the budget (0: the calibrated one for env and mode)", low=0.0, high=MAX_EPS)
     grid: str = arg("lr=0.001,0.0003", "the points: <field>=<v>,<v> groups of train-adversary fields, separated by "
                                        "spaces; the scan trains every combination (a group of one value sets that "
                                        "field for every point, e.g. n_envs=64)")
-    steps: int = arg(1_000_000, "training steps of each adversary", low=1)
-    episodes: int = arg(10, "episodes each adversary attacks the victim on (the same for all, and clean)", low=1)
-    seed: int = arg(seeds.SCAN, "env seed of the first evaluation episode")
-    horizon: int = arg(1000, "steps per evaluation episode", low=1)
-    workers: int = arg(2, "CPUs of the local Ray the tasks run on (1: one after the other in this process)", low=1)
+    steps: int = arg(1_000_000, "training steps of each adversary", low=1, high=10**9)
+    episodes: int = arg(10, "episodes each adversary attacks the victim on (the same for all, and clean)",
+                        low=1, high=100_000)
+    seed: int = arg(seeds.SCAN, "env seed of the first evaluation episode", low=0, high=2**31 - 1)
+    horizon: int = arg(1000, "steps per evaluation episode", low=1, high=1_000_000)
+    workers: int = arg(2, "CPUs of the local Ray the tasks run on (1: one after the other in this process)",
+                       low=1, high=1024)
     address: str = arg("", "run the tasks on this Ray cluster instead (<head ip>:6379, or auto)")
     out: str = arg("", "the folder to write (default runs/scan-<env>-<mode>-<victim name>)")
 

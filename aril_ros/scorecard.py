@@ -64,6 +64,7 @@ from .registry import (
     ATTACKED_MODES,
     ATTACKS,
     DEFAULT_ENV,
+    MAX_EPS,
     PER_MODE_POLICIES,
     WHITE_BOX,
     bundled_file,
@@ -117,7 +118,8 @@ class ScorecardConfig:
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes: sensory, physical")
     budget: str = arg("quick", f"{' or '.join(BUDGETS)}: " + "; ".join(
         f"{name} {b.describe()}" for name, b in BUDGETS.items()))
-    eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)")
+    eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)",
+                     low=0.0, high=MAX_EPS)
     expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
     scales: str = arg(SCALES, "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is "
                               "judged at eps)")
@@ -129,12 +131,15 @@ class ScorecardConfig:
                        "only the graph reaches, else engine")
     domain: str = arg("", "policy:=external: the ROS_DOMAIN_ID your node runs in, which every run joins")
     keep_logs: bool = arg(False, "through the graph: keep each graph run's log under <out>/logs/")
-    seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)")
-    episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)")
-    adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)")
-    horizon: int = arg(HORIZON, "steps per episode")
+    seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)",
+                    low=0, high=2**31 - 1)
+    episodes: int = arg(0, "episodes per cell instead of the budget's (0: the budget's)", low=0, high=100_000)
+    adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)",
+                               low=0, high=10**9)
+    horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
     workers: int = arg(2, "a policy file or bundled name: CPUs of the local Ray its cells run on as tasks (1: one "
-                          "after the other in this process); an external node's cells run one after the other")
+                          "after the other in this process); an external node's cells run one after the other",
+                       low=1, high=1024)
     address: str = arg("", "a policy file or bundled name: run its cells on this Ray cluster instead (<head ip>:6379, "
                            "or auto)")
     out: str = arg("", "the folder to write (default runs/scorecard-<env>-<policy name>)")

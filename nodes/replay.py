@@ -24,8 +24,9 @@ class ReplayConfig:
     """Arguments of ``aril replay``."""
 
     file: str = arg("", "the run log (.mcap) to play")
-    rate: float = arg(1.0, "playback speed: 2.0 plays twice as fast as sim time; 0 plays without pauses")
-    wait_for_subscribers: int = arg(0, "wait until each topic has this many subscribers (up to 10 s)")
+    rate: float = arg(1.0, "playback speed: 2.0 plays twice as fast as sim time; 0 plays without pauses",
+                      low=0.0, high=1000.0)
+    wait_for_subscribers: int = arg(0, "wait until each topic has this many subscribers (up to 10 s)", low=0, high=1000)
 
 
 def replay(cfg: ReplayConfig, log=print) -> int:

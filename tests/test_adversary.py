@@ -40,6 +40,7 @@ def objective(adversary_file, victim, expert, mode="sensory"):
     return engine.rollout(4, seed=123).mean_expert_loss
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sensory", "physical"])
 def test_a_short_training_run_increases_the_objective(mode, swimmer_files, tmp_path):
     victim, expert = swimmer_files
@@ -125,6 +126,7 @@ def test_a_rescaled_learned_attack_is_the_same_perturbation_scaled(swimmer_files
     assert half.eps == 0.1 and np.all(np.abs(b) <= 0.1)
 
 
+@pytest.mark.slow
 def test_training_can_start_from_an_adversary_file(swimmer_files, tmp_path):
     victim, expert = swimmer_files
     common = dict(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), n_envs=4, rollout=50)

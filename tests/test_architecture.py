@@ -26,6 +26,7 @@ def _run(code: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_every_library_module_and_the_non_ros_commands_leave_rclpy_unimported():
     code = f"""
 import contextlib, io, json, sys

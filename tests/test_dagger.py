@@ -20,6 +20,7 @@ def small(tmp_path, **overrides):
     return LearnerConfig(**{**fields, **overrides})
 
 
+@pytest.mark.slow
 def test_rounds_aggregate_the_learners_own_states_and_select_the_best(tmp_path):
     out = train_learner(small(tmp_path), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
@@ -36,6 +37,7 @@ def test_rounds_aggregate_the_learners_own_states_and_select_the_best(tmp_path):
     assert policy.meta.provenance["command"].startswith("aril train-learner algorithm:=dagger env:=Swimmer-v5")
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_resumes_from_its_last_round_and_ends_as_an_uninterrupted_one(tmp_path):
     train_learner(small(tmp_path / "a"), log=quiet)
 
@@ -58,6 +60,7 @@ def test_an_interrupted_run_resumes_from_its_last_round_and_ends_as_an_uninterru
     np.testing.assert_array_equal(a.act(obs), b.act(obs))
 
 
+@pytest.mark.slow
 def test_more_rounds_extend_a_finished_run(tmp_path):
     train_learner(small(tmp_path), log=quiet)
     train_learner(small(tmp_path, rounds=3), log=quiet)
@@ -65,12 +68,14 @@ def test_more_rounds_extend_a_finished_run(tmp_path):
     assert [r.get("samples") for r in state["rounds"]] == [1000, 2000, 3000, None]
 
 
+@pytest.mark.slow
 def test_a_run_directory_refuses_other_settings(tmp_path):
     train_learner(small(tmp_path), log=quiet)
     with pytest.raises(ValueError, match=r"other settings \(episodes\)"):
         train_learner(small(tmp_path, episodes=2), log=quiet)
 
 
+@pytest.mark.slow
 def test_domain_randomisation_collects_through_random_perturbations(tmp_path):
     train_learner(small(tmp_path, algorithm="dr", mode="sensory", eps=0.05), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
@@ -91,6 +96,7 @@ def test_bad_arguments_are_refused(tmp_path):
         train_learner(small(tmp_path, rounds=0), log=quiet)
 
 
+@pytest.mark.slow
 def test_dr_takes_the_calibrated_eps_by_default(tmp_path):
     from aril_ros.registry import calibrated_eps
 
@@ -101,6 +107,7 @@ def test_dr_takes_the_calibrated_eps_by_default(tmp_path):
         calibrated_eps("Swimmer-v5", "physical", tmp_path / "cal.json")
 
 
+@pytest.mark.slow
 def test_dart_collects_with_the_expert_and_noise_sized_by_the_learner(tmp_path):
     train_learner(small(tmp_path, algorithm="dart"), log=quiet)
     state = json.loads((tmp_path / "run" / "state.json").read_text())
@@ -110,6 +117,7 @@ def test_dart_collects_with_the_expert_and_noise_sized_by_the_learner(tmp_path):
         assert list(np.bincount(data["round"])) == [1000, 1000]
 
 
+@pytest.mark.slow
 def test_rounds_through_the_ros_graph_give_the_in_process_data_set(tmp_path):
     common = dict(algorithm="dr", mode="sensory", eps=0.05, rounds=2)  # round 1 collects under the attack
     train_learner(small(tmp_path / "inprocess", **common), log=quiet)
@@ -124,6 +132,7 @@ def test_rounds_through_the_ros_graph_give_the_in_process_data_set(tmp_path):
     assert [r["return"] for r in a] == pytest.approx([r["return"] for r in b], rel=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sensory", "physical"])
 def test_aril_trains_an_adversary_against_each_learner_and_collects_under_it(tmp_path, mode):
     from aril_ros.adversary import load_adversary
@@ -145,6 +154,7 @@ def test_aril_trains_an_adversary_against_each_learner_and_collects_under_it(tmp
     assert f"{mode}, aril_a eps 0.05" in policy.meta.provenance["selection"]
 
 
+@pytest.mark.slow
 def test_aril_keeps_the_strongest_of_its_round_candidates_and_reuses_finished_ones(tmp_path):
     from aril_ros.adversary import load_adversary
 
@@ -169,6 +179,8 @@ def test_aril_keeps_the_strongest_of_its_round_candidates_and_reuses_finished_on
 
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("ray")  # with the other Ray tests (tests/test_sweep.py)
 def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_path, monkeypatch):
     """workers:=2 trains a round's candidates as Ray tasks side by side; each candidate is the very adversary the
     in-process run trains (same weights), and its provenance names the victim by the run's relative path."""
@@ -194,6 +206,7 @@ def test_round_candidates_on_a_local_ray_are_the_files_trained_in_process(tmp_pa
     assert made["cpu_seconds"] == pytest.approx(made["train_seconds"] + trainings
                                                 - made["rounds_log"][1]["adversary_seconds"], abs=0.2)
 
+@pytest.mark.slow
 def test_query_attacks_compete_with_the_trained_adversaries_for_f_t(tmp_path):
     """round_attacks:= judges the trained adversary and each query attack by pi_t's disagreement with the expert
     on the same episodes; the largest is f_t, and the round collects under it."""

@@ -1,5 +1,7 @@
 import json
 
+import pytest
+
 from aril_ros.experiments import (
     AttackTableConfig,
     CalibrationConfig,
@@ -12,6 +14,7 @@ QUIET = dict(log=lambda *a, **k: None)
 ONE = dict(workers=1)  # in this process: the patched registry and the fixtures' files are this process's
 
 
+@pytest.mark.slow
 def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
     expert = save_policy(make_policy("Swimmer-v5", seed=2), tmp_path / "expert.pt")
@@ -40,6 +43,7 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
 
 
+@pytest.mark.slow
 def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
     victim = save_policy(make_policy("Swimmer-v5", seed=1), tmp_path / "victim.pt")
     common = dict(envs="Swimmer-v5", policy=str(victim), expert=str(victim), grid="0.01", episodes=1, horizon=20,
@@ -60,6 +64,7 @@ def test_calibration_fills_in_mode_by_mode(tmp_path, make_policy):
     assert payload["victim"] == "per row" and f"| Hopper-v5 | sensory | {hopper} |" in (tmp_path / "cal.md").read_text()
 
 
+@pytest.mark.slow
 def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path, make_policy, monkeypatch):
     from aril_ros import registry
     from aril_ros.adversary import load_adversary
@@ -104,6 +109,7 @@ def test_defense_table_reports_each_defense_under_its_strongest_attack(tmp_path,
     assert "the strongest of 1 or 2" in (tmp_path / "def.md").read_text()  # dagger's cell kept its one
 
 
+@pytest.mark.slow
 def test_a_victim_too_fragile_for_the_grid_is_calibrated_below_it(tmp_path, make_policy):
     """Where even the grid's smallest eps breaks the rule (an onboarded Hopper under physical attack), halvings of it
     are tried, and the chosen eps is the largest that keeps the rule, or the smallest tried, said so."""

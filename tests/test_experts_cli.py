@@ -101,12 +101,14 @@ def test_eval_errors_are_one_clear_line(capsys):
     assert "mode:=clean runs no attack" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_non_mujoco_id_is_refused_in_a_fresh_process():
     # nothing else imported gymnasium's MuJoCo package in that process
     out = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "env:=CartPole-v1"], capture_output=True, text=True)
     assert out.returncode == 2 and "not a gymnasium MuJoCo environment" in out.stderr, out.stderr
 
 
+@pytest.mark.slow
 def test_help_and_module_entry_point():
     out = subprocess.run([sys.executable, "-m", "aril_ros", "eval", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "mode:=" in out.stdout and "episodes:=" in out.stdout
@@ -114,6 +116,7 @@ def test_help_and_module_entry_point():
     assert out.returncode == 2 and "train-expert" in out.stdout
 
 
+@pytest.mark.slow
 def test_train_expert_resumes_from_a_checkpoint(tmp_path):
     from aril_ros.experts import ExpertConfig, train_expert
     from aril_ros.policy import load_policy

@@ -44,6 +44,7 @@ def stop(node) -> None:
         node.wait()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode, env_id, attack, listeners", [("sensory", "HalfCheetah-v5", "random", 2),
                                                              ("physical", "Swimmer-v5", "spsa", 3)])
 def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, listeners, tmp_path):
@@ -71,6 +72,7 @@ def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, lis
 LONG = os.environ.get("ARIL_LONG_TESTS") == "1"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shortened", [
     dict(episodes=1, adversary_steps=2048, horizon=40, scales="1"),
     pytest.param({}, marks=pytest.mark.skipif(not LONG, reason="the quick budget unshortened, ~25 min: "
@@ -112,6 +114,7 @@ def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_p
     assert "## physical" in page.read_text()
 
 
+@pytest.mark.slow
 def test_training_against_the_documented_node_alone_names_its_listeners(tmp_path):
     """aril train-adversary victim:=ros asks the node with one listener on action: the doc's node, waiting for 2
     before it subscribes, never would; the error says so and how to start it, and with listeners:=1 it answers."""
@@ -171,6 +174,7 @@ def test_out_of_range_actions_move_as_clipped_but_cost_as_sent(env_id):
     assert reward_c - reward == pytest.approx(weight * (np.sum(action ** 2) - np.sum(clipped ** 2)), rel=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("attack", ["fgsm", "fgsm_k"])
 def test_a_white_box_attack_on_an_external_policy_is_refused_naming_the_black_box_ones(attack):
     from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
@@ -179,6 +183,7 @@ def test_a_white_box_attack_on_an_external_policy_is_refused_naming_the_black_bo
         Orchestrator(GraphConfig(attack=attack, policy="external", record="off"))
 
 
+@pytest.mark.slow
 def test_a_node_that_tags_its_answers_wrong_is_named(tmp_path):
     """It answers step <e>/<s> with the tag <e>/<s+1>: the run says so, not only the simulator's log."""
     wrong_tag = documented_node().replace(
@@ -202,6 +207,7 @@ def test_a_node_that_tags_its_answers_wrong_is_named(tmp_path):
     assert "still running" not in out.stderr
 
 
+@pytest.mark.slow
 def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
     _, expert = policy_files(tmp_path, "HalfCheetah-v5")
     domain = free_domain()
@@ -217,6 +223,7 @@ def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
            in out.stderr, out.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ros_args, reliability, cause", [
     (("-p", "listeners:=3"), "RELIABLE", ("node 'my_policy' publishes on /action but has not subscribed to "
                                           "/observation: a node that waits for subscribers on action first must wait "

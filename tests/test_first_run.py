@@ -18,6 +18,7 @@ from tests.test_graph import free_domain, run_graph, summary_of
 SHORT = dict(episodes=2, horizon=60, seed=0)
 
 
+@pytest.mark.slow
 def test_the_first_run_attacks_with_the_adversary_bundled_against_dagger_beside_the_clean_return(tmp_path):
     out = run_graph("mode:=sensory", *(f"{k}:={v}" for k, v in SHORT.items()), f"record:={tmp_path / 'run.mcap'}")
     summary = summary_of(out)
@@ -49,6 +50,7 @@ def test_the_default_attack_is_the_adversary_bundled_against_the_policy_or_rando
     assert choose_attack("Swimmer-v5", "clean", policy).name == "none"
 
 
+@pytest.mark.slow
 def test_an_external_nodes_clean_baseline_is_a_clean_run_of_the_graph(tmp_path):
     """The engine cannot run a node it does not have: the clean episodes go through the graph too, logged beside."""
     domain = free_domain()

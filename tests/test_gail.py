@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from aril_ros.envs import make_gym_env
@@ -19,6 +20,7 @@ def test_the_wrapper_pays_the_discriminators_reward_and_keeps_the_pairs():
     env.close()
 
 
+@pytest.mark.slow
 def test_a_short_gail_run_writes_a_policy_and_its_discriminator_learns(tmp_path):
     lines = []
     out = train_gail(GailConfig(env="Swimmer-v5", steps=4096, hidden=32, eval_every=2048, eval_episodes=1, demos=1,

@@ -20,8 +20,7 @@ from aril_ros.envs import MujocoSim, layout_of
 from aril_ros.policy import load_policy, save_policy
 from aril_ros.rollout import RolloutEngine
 from aril_ros.runlog import RunLogError, read_run, recover
-from aril_ros_nodes.launcher import allocate_domain
-from tests.conftest import random_policy
+from tests.conftest import free_domain, random_policy
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPARED = ("true_obs", "obs", "delta", "action", "expert_action", "reward")
@@ -40,13 +39,6 @@ def assert_same_steps(run, traj) -> None:
 def policy_files(tmp_path, env_id):
     return (save_policy(random_policy(env_id, seed=1), tmp_path / "policy.pt"),
             save_policy(random_policy(env_id, seed=2), tmp_path / "expert.pt"))
-
-
-def free_domain() -> int:
-    """A domain no other aril_ros run holds; released so run_graph.py (domain:=N) can take it."""
-    domain, lock = allocate_domain("auto")
-    lock.close()
-    return domain
 
 
 def ros_env(domain: int) -> dict:
@@ -90,6 +82,7 @@ def summary_of(out) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode, env_id, attack", [("clean", "Swimmer-v5", "none"),
                                                   ("sensory", "HalfCheetah-v5", "random"),
                                                   ("physical", "Ant-v5", "random"),
@@ -144,6 +137,7 @@ def recorded(recorded_files):
     return recorded_files[0]
 
 
+@pytest.mark.slow
 def test_recording_does_not_change_the_run(recorded_files):
     _, policy, expert, with_log = recorded_files
     without = summary_of(run_graph(*RECORDED_RUN, f"policy:={policy}", f"expert:={expert}", "record:=off"))
@@ -152,6 +146,7 @@ def test_recording_does_not_change_the_run(recorded_files):
         assert without[key] == with_log[key], key
 
 
+@pytest.mark.slow
 def test_log_reads_step_by_step_with_rosbags(recorded):
     from rosbags.highlevel import AnyReader
 
@@ -179,6 +174,7 @@ def test_log_reads_step_by_step_with_rosbags(recorded):
     assert len(seen) == 7 * len(ours.tags)
 
 
+@pytest.mark.slow
 def test_dataset_loader_and_its_refusals(recorded, tmp_path):
     from mcap.writer import Writer
 
@@ -208,6 +204,7 @@ def test_dataset_loader_and_its_refusals(recorded, tmp_path):
         load_dagger_dataset(recorded, env_id="Ant-v5")
 
 
+@pytest.mark.slow
 def test_replay_republishes_the_log_byte_for_byte(recorded):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -246,6 +243,7 @@ def test_replay_republishes_the_log_byte_for_byte(recorded):
     assert got == recorded_states
 
 
+@pytest.mark.slow
 def test_the_ros_side_registers_its_command_collector_victim_and_benchmark(capsys):
     from aril_ros import plugins
     from aril_ros.cli import main
@@ -259,8 +257,8 @@ def test_the_ros_side_registers_its_command_collector_victim_and_benchmark(capsy
     out = capsys.readouterr().out
     assert out.startswith("usage: aril replay") and "file:=" in out and "rate:=" in out
     bench = subprocess.run([sys.executable, "-m", plugins.value("aril_ros.benchmarks", "graph"), "--help"],
-                           capture_output=True, text=True, timeout=120)
-    assert bench.returncode == 0 and "python -m aril_ros_nodes.bench_graph" in bench.stdout, bench.stderr
+                           capture_output=True, text=True, timeout=120, cwd=ROOT)  # a module of the checkout
+    assert bench.returncode == 0 and "python -m benchmarks.graph.bench_graph" in bench.stdout, bench.stderr
 
 
 def child_processes() -> list[int]:
@@ -353,6 +351,7 @@ def run_with_external(behaviour, tmp_path, *args):
         external.wait()
 
 
+@pytest.mark.slow
 def test_an_external_policy_node_is_swapped_in_and_attacked(tmp_path):
     summary = summary_of(run_with_external("good", tmp_path))
     run = read_run(tmp_path / "run.mcap")
@@ -362,6 +361,7 @@ def test_an_external_policy_node_is_swapped_in_and_attacked(tmp_path):
     assert run.metadata["policy_provenance"] == "external"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("behaviour, message", [
     ("short", "node 'simulator' exited with code 1: .*action for step 0/0 has 1 values, HalfCheetah-v5 takes 6"),
     ("nan", "node 'simulator' exited with code 1: .*action for step 0/0 is not finite"),
@@ -378,6 +378,7 @@ def test_bad_policies_stop_the_graph_with_a_clear_error_and_an_intact_log(behavi
         read_run(tmp_path / "run.mcap")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, message", [
     (("attack:=aril_a", "attack_file:=missing.pt"), "missing.pt: no such adversary file"),
     (("attack:=fgsm", "policy:=external"), "white-box and needs the victim's weights"),
@@ -390,6 +391,7 @@ def test_bad_arguments_are_refused_before_any_node_starts(args, message):
     assert "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_an_external_policy_that_never_appears_is_named(tmp_path):
     _, expert = policy_files(tmp_path, "HalfCheetah-v5")
     out = run_graph("policy:=external", f"expert:={expert}", "connect_timeout:=3", "record:=off")
@@ -425,6 +427,7 @@ def simulator_and_prober(cwd=None):
         sim.wait(10)
 
 
+@pytest.mark.slow
 def test_set_state_validates_its_request(tmp_path):
     from rcl_interfaces.srv import SetParametersAtomically
 
@@ -472,6 +475,7 @@ def start_long_run(tmp_path, domain):
     return proc, log
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_every_node_and_closes_the_log(tmp_path):
     domain = free_domain()
     proc, log = start_long_run(tmp_path, domain)
@@ -484,6 +488,7 @@ def test_ctrl_c_stops_every_node_and_closes_the_log(tmp_path):
     assert "interrupted" in run.end["reason"]
 
 
+@pytest.mark.slow
 def test_a_killed_run_leaves_its_complete_steps_recoverable(tmp_path):
     domain = free_domain()
     proc, log = start_long_run(tmp_path, domain)
@@ -500,6 +505,7 @@ def test_a_killed_run_leaves_its_complete_steps_recoverable(tmp_path):
     assert steps == len(run.tags) > 0
 
 
+@pytest.mark.slow
 def test_aril_a_trains_against_a_policy_node_over_ros(tmp_path):
     """Black box: the adversary only sees the actions a running policy node publishes."""
     policy, expert = policy_files(tmp_path, "Swimmer-v5")
@@ -532,6 +538,7 @@ def test_aril_a_trains_against_a_policy_node_over_ros(tmp_path):
     assert "over ROS" in adversary.meta["provenance"]["victim_provenance"]["victim"]
 
 
+@pytest.mark.slow
 def test_render_records_camera_frames_beside_the_steps(tmp_path):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -561,6 +568,7 @@ def test_render_records_camera_frames_beside_the_steps(tmp_path):
         assert len(list(make_reader(f).iter_messages(topics=["/sim/camera/image/compressed"]))) == 6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ["gail", "dart", "dr"])
 def test_trained_defenses_load_in_the_policy_node(algorithm, tmp_path):
     from aril_ros.dagger import train_learner

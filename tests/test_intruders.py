@@ -119,6 +119,7 @@ def intrude(tmp_path, topic: str, frame_id: str, listeners: int, at: str = INJEC
     return out, gid.group(1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("topic, frame_id, listeners", [
     (P.ACTION, "current", 2),  # (a) an action with the current step tag: the simulator and the recorder listen
     (P.OBSERVATION, "current", 2),  # (b) an observation: the policy and the recorder
@@ -140,6 +141,7 @@ def test_a_foreign_publisher_stops_the_run_named_and_the_log_is_interrupted(topi
         read_run(tmp_path / "run.mcap")
 
 
+@pytest.mark.slow
 def test_a_node_passing_for_one_of_the_run_s_nodes_is_refused_before_the_first_step(tmp_path):
     out, gid = intrude(tmp_path, P.STATE, "current", 0, at="start", name="expert")
     assert out.returncode == 1, out.stderr
@@ -149,6 +151,7 @@ def test_a_node_passing_for_one_of_the_run_s_nodes_is_refused_before_the_first_s
     assert run.end["interrupted"] is True and len(run.tags) == 0
 
 
+@pytest.mark.slow
 def test_a_byte_identical_second_action_is_counted_and_the_log_stays_exact(tmp_path):
     out, _ = run_with(TWICE, ["twice", INJECT_AT], tmp_path, "policy:=external", "horizon:=20")
     assert out.returncode == 0, out.stderr
@@ -158,6 +161,7 @@ def test_a_byte_identical_second_action_is_counted_and_the_log_stays_exact(tmp_p
     np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :2]))
 
 
+@pytest.mark.slow
 def test_a_different_second_action_is_a_fault_naming_step_topic_and_publisher(tmp_path):
     out, _ = run_with(TWICE, ["differs", INJECT_AT], tmp_path, "policy:=external", "horizon:=20")
     assert out.returncode == 1, out.stderr

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from aril_ros.dataset import DaggerDataset
 from aril_ros.learners import BCConfig, fit_policy, train_bc
@@ -33,6 +34,7 @@ def test_fit_policy_is_seeded_and_imitates(make_policy):
     assert error(a) < 0.2 * error(untrained)
 
 
+@pytest.mark.slow
 def test_train_bc_writes_a_policy_with_provenance(tmp_path, make_policy):
     expert_file = save_policy(make_policy("Swimmer-v5", seed=7), tmp_path / "expert.pt")
     out = train_bc(BCConfig(env="Swimmer-v5", expert=str(expert_file), episodes=2, epochs=2,

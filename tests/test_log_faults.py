@@ -99,6 +99,7 @@ def with_delta(messages: dict[str, bytes], delta: np.ndarray) -> dict[str, bytes
             P.OBSERVATION: edited(messages[P.OBSERVATION], position=list(state + delta))}
 
 
+@pytest.mark.slow
 def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
     log, _ = recorded
     meta, steps = steps_of(log)
@@ -146,6 +147,7 @@ def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
             read_run(write_log(tmp_path / f"{name}.mcap", broken_meta, steps))
 
 
+@pytest.mark.slow
 def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path):
     log, _ = recorded
     before = log.read_bytes()
@@ -158,6 +160,7 @@ def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorde
     assert set(re.findall(r"`(\w+)`", documented)) == END_KEYS == set(read_run(log).end)
 
 
+@pytest.mark.slow
 def test_log_recover_drops_a_step_missing_a_message_and_keeps_the_rest(recorded, tmp_path):
     log, _ = recorded
     meta, steps = steps_of(log)
@@ -184,6 +187,7 @@ def test_log_recover_drops_a_step_missing_a_message_and_keeps_the_rest(recorded,
         read_run(tmp_path / "recovered.mcap")
 
 
+@pytest.mark.slow
 def test_log_recover_skips_damaged_chunks_and_keeps_every_intact_step_after_them(recorded, tmp_path):
     log, _ = recorded
     data = bytearray(log.read_bytes())
@@ -210,6 +214,7 @@ def test_log_recover_skips_damaged_chunks_and_keeps_every_intact_step_after_them
     assert sorted(run.end["missing_steps"]) == sorted(str(t) for t, gone in zip(original.tags, lost) if gone)
 
 
+@pytest.mark.slow
 def test_default_record_names_differ_for_runs_started_in_the_same_second(monkeypatch):
     import datetime
 
@@ -226,6 +231,7 @@ def test_default_record_names_differ_for_runs_started_in_the_same_second(monkeyp
     assert first != second and first.name.startswith("20261124-010203-Swimmer-v5-sensory")
 
 
+@pytest.mark.slow
 def test_a_record_path_that_exists_or_cannot_be_written_stops_the_run_before_any_node(recorded, tmp_path):
     log, policies = recorded
     before = log.read_bytes()
@@ -240,6 +246,7 @@ def test_a_record_path_that_exists_or_cannot_be_written_stops_the_run_before_any
     assert log.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_a_full_disk_stops_the_run_with_a_clear_error_and_leaves_its_steps_recoverable(recorded, tmp_path):
     """A file size limit stands in for a full disk: writes past it fail with EFBIG, as with ENOSPC."""
     log, policies = recorded
@@ -305,6 +312,7 @@ def test_a_pickled_policy_is_refused_without_advice_to_run_it(tmp_path):
     assert "weights_only" not in message and "arbitrary code" not in message and not marker.exists()
 
 
+@pytest.mark.slow
 def test_a_resumed_learner_collects_a_round_again_over_its_killed_attempts_log(recorded, tmp_path, monkeypatch):
     """The graph's writer never writes into an existing file, so the round's log of a killed attempt must go."""
     from aril_ros import collectors, dagger, plugins

@@ -2,6 +2,8 @@
 import json
 import os
 
+import pytest
+
 from aril_ros import registry
 from aril_ros.onboard import OnboardConfig, onboard
 from aril_ros.policy import resolve_policy
@@ -10,6 +12,7 @@ TINY = dict(env="Hopper-v5", expert_steps=300, eval_every=300, rounds=1, episode
             final_episodes=2)
 
 
+@pytest.mark.slow
 def test_onboarding_makes_the_names_resolve_and_resumes_instead_of_redoing(tmp_path, monkeypatch):
     monkeypatch.setenv("ARIL_DATA", str(tmp_path / "data"))
     package = {str(p): p.stat().st_mtime_ns for p in registry.DATA_DIR.rglob("*")}

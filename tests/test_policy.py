@@ -99,3 +99,33 @@ def test_corrupt_and_foreign_files_are_rejected(tmp_path, make_policy):
     torch.save(blob, tmp_path / "future.pt")
     with pytest.raises(PolicyFileError, match="version 99"):
         load_policy(tmp_path / "future.pt")
+
+
+def test_random_bytes_are_not_a_policy_file_and_not_called_pickled_code(tmp_path):
+    path = tmp_path / "x.pt"
+    path.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    with pytest.raises(PolicyFileError) as refused:
+        load_policy(path)
+    assert str(refused.value) == f"{path}: not an aril_ros policy file: not a torch archive"
+
+
+class Payload:
+    """Pickled code: loading it would call ``print``."""
+
+    def __reduce__(self):
+        return (print, ("ran",))
+
+
+@pytest.mark.parametrize("content, message", [
+    (lambda path: path.write_bytes(b"\x00" * 64), "x.pt: not an aril_ros policy file: not a torch archive"),
+    (lambda path: torch.save({"format": "aril_ros.policy", "payload": Payload()}, path),
+     "x.pt: refused for safety: the file holds pickled code or objects beyond plain weights"),
+])
+def test_aril_eval_refuses_a_file_that_is_no_policy_in_one_line(content, message, tmp_path, monkeypatch, capsys):
+    from aril_ros.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    content(Path("x.pt"))
+    assert main(["eval", "env:=Swimmer-v5", "policy:=x.pt"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith(f"aril eval: error: {message}") and err.count("\n") == 1, err

@@ -37,6 +37,7 @@ def message_counts(log) -> dict[str, int]:
 
 
 # aril_a's sensory probes without search: test_graph's graph≡engine test (its adversary takes actions)
+@pytest.mark.slow
 @pytest.mark.parametrize("mode, attack", [("sensory", "spsa"), ("physical", "spsa"), ("physical", "aril_a")])
 def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, tmp_path):
     from aril_ros.adversary import AdversaryConfig, train_adversary
@@ -191,6 +192,7 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
         assert message_counts(log)["/probe/action"] == 2
 
 
+@pytest.mark.slow
 def test_queries_victim_says_which_attacks_ask_the_policy(tmp_path):
     from aril_ros.adversary_net import load_adversary
     from aril_ros.attacks import queries_victim
@@ -223,6 +225,7 @@ def state_only_adversary(tmp_path):
                                           log=lambda *a, **k: None))
 
 
+@pytest.mark.slow
 def test_the_policy_node_is_ready_only_once_every_listener_on_action_has_matched(tmp_path, monkeypatch):
     """Under a query attack the attacker's probe client listens on action too. A policy node ready at two
     subscribers could then answer step 0 before the simulator has matched its publisher, and that action

@@ -2,7 +2,7 @@
 import os
 import time
 
-from aril_ros_nodes.profile_graph import CpuSampler, process_name
+from benchmarks.graph.profile_graph import CpuSampler, process_name
 
 
 def test_processes_are_named_by_their_part_of_the_run():
@@ -10,7 +10,7 @@ def test_processes_are_named_by_their_part_of_the_run():
     assert process_name(me, "python anything").startswith("this process")
     assert process_name(1, "python -m aril_ros_nodes.simulator_node --ros-args -p env:=Ant-v5") == "simulator"
     assert process_name(1, "python -m aril_ros_nodes.policy_node --ros-args") == "policy"
-    assert process_name(1, "python -m aril_ros_nodes.bare_chain --ros-args -p role:=expert -r __node:=x") == "bare expert"
+    assert process_name(1, "python -m benchmarks.graph.bare_chain --ros-args -p role:=expert -r __node:=x") == "bare expert"
     assert process_name(1, "python train.py") is None
 
 
@@ -27,7 +27,7 @@ def test_the_sampler_reads_the_cpu_this_process_uses():
 
 
 def test_a_step_costs_the_cpu_used_between_the_marks_alone():
-    from aril_ros_nodes.profile_graph import per_step
+    from benchmarks.graph.profile_graph import per_step
 
     def busy(seconds):
         started = time.process_time()
@@ -43,3 +43,15 @@ def test_a_step_costs_the_cpu_used_between_the_marks_alone():
 
     figures = per_step(run, steps=100)
     assert 4.0 < sum(figures.values()) < 7.0  # 0.5 s over 100 steps: 5 ms each, start-up and shutdown left out
+
+
+def test_the_graph_benchmarks_are_the_checkout_s_and_registered_for_the_report():
+    import importlib.util
+
+    from aril_ros import plugins
+
+    for name in ("bench_graph", "bench_soak", "bare_chain", "profile_graph"):
+        assert importlib.util.find_spec(f"aril_ros_nodes.{name}") is None  # not installed with the ROS package
+        assert importlib.util.find_spec(f"benchmarks.graph.{name}") is not None
+    assert [plugins.value("aril_ros.benchmarks", n) for n in ("graph", "soak")] == [
+        "benchmarks.graph.bench_graph", "benchmarks.graph.bench_soak"]

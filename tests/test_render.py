@@ -4,6 +4,7 @@ from PIL import Image
 from aril_ros.render import RenderConfig, render
 
 
+@pytest.mark.slow
 def test_panels_are_rendered_side_by_side_into_a_gif(tmp_path):
     out = render(RenderConfig(env="Swimmer-v5", mode="physical", panels="dagger:none,aril:aril_a", steps=7, every=3,
                               width=64, height=48, out=str(tmp_path / "a.gif")), log=lambda *a, **k: None)

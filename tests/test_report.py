@@ -41,6 +41,7 @@ def test_one_producer_of_cells_gives_numpys_figures_and_one_rule_picks_the_worst
     assert worst_attack(cells, among=("random", "aril_a")) == "aril_a" and worst_attack({}) is None
 
 
+@pytest.mark.slow
 def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, monkeypatch):
     from aril_ros import experiments
     from aril_ros.report.tables import table_cells
@@ -74,6 +75,7 @@ def test_a_cell_that_could_not_be_produced_says_why():
     assert "| DAgger, clean | 100 ± 1 | 81 |" in lines[2]
 
 
+@pytest.mark.slow
 def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp_path):
     cfg = ReportConfig(envs="Swimmer-v5", modes="physical", episodes=2, sweep_episodes=1, horizon=40, perf=False,
                        work_dir=str(tmp_path / "work"), out=str(tmp_path / "docs" / "results.md"))
@@ -152,6 +154,7 @@ def test_other_training_seeds_repeat_the_bundled_policys_own_command(tmp_path, m
             assert str(getattr(cfg, key)) == value, key
 
 
+@pytest.mark.slow
 def test_several_training_seeds_give_intervals_over_seeds(tmp_path, monkeypatch):
     import shutil
 

@@ -30,6 +30,7 @@ def test_same_seed_gives_identical_arrays(mode, make_policy):
     assert not np.array_equal(a.true_obs, c.true_obs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("attack", ["random", "fgsm_k"])
 @pytest.mark.parametrize("mode", ["sensory", "physical"])
 def test_results_do_not_depend_on_how_many_envs_run_side_by_side(mode, attack, make_policy):

@@ -52,6 +52,7 @@ def test_every_argument_is_checked_before_anything_starts(args, message):
     assert message in str(refused.value)
 
 
+@pytest.mark.slow
 def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     domain = free_domain()
     out = run_graph("episodes:=0", domain=domain, timeout=120)
@@ -93,6 +94,7 @@ def stop_run(proc) -> str:
         return proc.communicate()[1] + "\n(killed: no exit within 30 s)"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, exit_code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_a_stop_signal_exits_with_its_code_and_closes_the_log_as_interrupted(signum, exit_code, tmp_path):
     domain = free_domain()
@@ -119,6 +121,7 @@ def pid_of_node(domain: int, name: str) -> int:
     raise AssertionError(f"no {name} node in domain {domain}")
 
 
+@pytest.mark.slow
 def test_a_killed_node_is_named_with_its_signal_and_the_log_closed_as_interrupted(tmp_path):
     domain = free_domain()
     proc, log = start_run(tmp_path, domain)
@@ -136,6 +139,7 @@ def test_a_killed_node_is_named_with_its_signal_and_the_log_closed_as_interrupte
     assert run.end["interrupted"] is True and "node 'policy' was killed by SIGKILL" in run.end["reason"]
 
 
+@pytest.mark.slow
 def test_any_exception_closes_the_log_as_interrupted_with_its_reason(tmp_path, monkeypatch):
     """A fault of the orchestrator's own (here a bug planted in episode 1) is not a complete run."""
 

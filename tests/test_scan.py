@@ -27,6 +27,7 @@ def test_a_bad_value_is_refused_before_anything_trains(tmp_path):
     assert not list((tmp_path / "scan").glob("*.pt"))
 
 
+@pytest.mark.slow
 def test_every_point_is_trained_attacks_the_same_episodes_and_is_ranked(tmp_path):
     lines = []
     cfg = ScanConfig(**TINY, grid=f"lr=0.001,0.0003 {SMALL_UPDATES}", out=str(tmp_path / "scan"))

@@ -25,6 +25,7 @@ def small_card(tmp_path_factory):
     return cfg, out, page, lines
 
 
+@pytest.mark.slow
 def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small_card):
     cfg, out, _, _ = small_card
     card = json.loads((out / "scorecard.json").read_text())
@@ -42,6 +43,7 @@ def test_every_cell_runs_the_same_episodes_and_the_clean_one_is_aril_evals(small
     assert [round(e["return"], 3) for e in sensory["clean"]["episodes"]] == clean["returns"]
 
 
+@pytest.mark.slow
 def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_card):
     _, out, page, _ = small_card
     sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
@@ -62,6 +64,7 @@ def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_car
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and np.frombuffer(png[16:24], ">u4").tolist() == [660, 396]
 
 
+@pytest.mark.slow
 def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp_path):
     cfg, out, _, lines = small_card
     assert any("training ARIL-A against" in line for line in lines)
@@ -121,6 +124,7 @@ def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_nam
     assert victim_of("aril", "Swimmer-v5", "physical") == str(package)
 
 
+@pytest.mark.slow
 def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_file(small_card, tmp_path):
     """The bundled DAgger learner run as the user's own node: every cell through the graph, ARIL-A trained
     against the node's answers; the graph is bit-exact to the engine, so the figures are the engine's (random runs
@@ -147,6 +151,8 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     assert any("training ARIL-A against ros" in line for line in lines)
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("ray")  # with the other Ray tests (tests/test_sweep.py)
 def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_scores_it(small_card, tmp_path):
     """via:=graph: every cell a run of the graph with a policy node serving the file, each a sweep task of
     GRAPH_RUN_CPUS. On two nodes of that many CPUs, the first two runs go one to each node at once (each in a ROS

@@ -11,6 +11,9 @@ from aril_ros.registry import adversary_path, bundled_file
 from aril_ros.report.jobs import FAILURES, evaluated_on, run_jobs
 from aril_ros.sweep import RAY, Kept, Produced, Shipped, connect, ensure_ray, kept_folder, run_tasks
 
+# one pytest-xdist worker runs them all: one Ray installed once (ensure_ray), one cluster at a time
+pytestmark = pytest.mark.xdist_group("ray")
+
 
 def quiet(*args, **kwargs):
     pass
@@ -24,6 +27,7 @@ def where_and_what(source: Path, out: Path) -> tuple[str, str, str]:
     return ray.get_runtime_context().get_node_id(), str(source), str(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_failures_named_by_the_caller_come_back_and_others_are_raised(workers):
     ray = connect("", workers)[0] if workers > 1 else None  # one embedded local Ray for both sweeps
@@ -51,6 +55,7 @@ def two_nodes():
     cluster.shutdown()
 
 
+@pytest.mark.slow
 def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path):
     sources = []
     for i in range(6):
@@ -68,6 +73,7 @@ def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path
     assert lines[-1].startswith("[sweep] files: 6/6 done, 0 running, 0 failed")
 
 
+@pytest.mark.slow
 def test_a_task_sees_relative_paths_as_the_driver_gave_them(two_nodes, tmp_path, monkeypatch):
     """What a task records of its files (a trained file's provenance) must not be a worker's scratch path."""
     monkeypatch.chdir(tmp_path)
@@ -86,6 +92,7 @@ def records_its_paths(source: Path, out: Path) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_a_task_sees_files_inside_the_checkout_by_their_checkout_relative_path(two_nodes, tmp_path, monkeypatch):
     """A bundled file is named by its absolute path (aril defense-table hands the trainer one): the file the task
     makes must record it as provenance.stamp does in one process, not as a worker's scratch path, and still land
@@ -114,6 +121,7 @@ def count_then_fail(folder: Path, fail: bool) -> tuple[str, int]:
     return str(folder), rounds
 
 
+@pytest.mark.slow
 def test_a_kept_folder_outlives_its_task_so_the_same_call_resumes(two_nodes, tmp_path, monkeypatch):
     """A training's run directory (``Kept``): on the driver's machine, the driver's folder, reached through the
     path the call gave (so provenance records no scratch path), still there after the task failed."""
@@ -131,6 +139,7 @@ def test_a_kept_folder_outlives_its_task_so_the_same_call_resumes(two_nodes, tmp
     assert kept_folder(call[0]) == tmp_path / "learners/aril-seed1"
 
 
+@pytest.mark.slow
 def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_nodes, tmp_path):
     env, mode = "Swimmer-v5", "sensory"
     policy, adversary = bundled_file("dagger", env), adversary_path(env, mode, "dagger")
@@ -165,6 +174,7 @@ def test_a_task_runs_as_many_physics_threads_as_it_has_cpus(monkeypatch):
     assert physics_threads() == 1
 
 
+@pytest.mark.slow
 def test_a_table_on_two_nodes_is_the_table_of_one_process(two_nodes, tmp_path, make_policy):
     """The tables' evaluations are sweep tasks too (calibrate-eps here): a policy file of the caller's travels."""
     from aril_ros.experiments import CalibrationConfig, calibrate_eps
@@ -178,6 +188,7 @@ def test_a_table_on_two_nodes_is_the_table_of_one_process(two_nodes, tmp_path, m
     assert [r["sweep"] for r in rows[1]] == [r["sweep"] for r in rows[0]]
 
 
+@pytest.mark.slow
 def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path):
     """Trainings are tasks too: an adversary trained on a worker is the one trained here, bit for bit in effect."""
     from aril_ros.scan import ScanConfig, scan_adversary
@@ -190,6 +201,7 @@ def test_a_scan_on_two_nodes_trains_and_ranks_as_one_process(two_nodes, tmp_path
     assert ranked[1] == ranked[0]
 
 
+@pytest.mark.slow
 def test_names_of_the_users_data_travel_as_their_files(two_nodes, tmp_path, monkeypatch, make_policy):
     """An onboarded env's ``dagger`` and ``expert`` live in the driver's $ARIL_DATA (here relative to the driver's
     folder), which the cluster's nodes do not have: a sweep sends them as files, and gives what one process gives."""
@@ -211,6 +223,7 @@ def test_names_of_the_users_data_travel_as_their_files(two_nodes, tmp_path, monk
     assert [r["mean_expert_loss"] for r in on_cluster] == [r["mean_expert_loss"] for r in in_process]
 
 
+@pytest.mark.slow
 def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
     """Ctrl-C on the driver of a sweep on a local Ray, then the same sweep again: the finished tasks are not rerun.
     A cluster runs on this machine meanwhile (``two_nodes``): the driver's embedded Ray must be its own, not join it."""
@@ -253,6 +266,7 @@ def test_a_killed_sweep_resumes_with_what_had_finished(two_nodes, tmp_path):
     assert evaluated_on([*runs, {"seconds": 1.0}])["CPU not recorded"] == 1
 
 
+@pytest.mark.slow
 def test_the_cache_knows_files_by_content_so_a_committed_cache_serves_another_checkout(tmp_path):
     import shutil
 

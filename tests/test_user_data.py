@@ -59,6 +59,7 @@ def test_calibrated_eps_falls_back_to_the_users_calibration(user_data):
     assert registry.calibrated_eps("HalfCheetah-v5", "sensory") == 0.04  # the bundled row comes first
 
 
+@pytest.mark.slow
 def test_trainers_write_to_the_user_folder_never_into_the_package(user_data):
     """train-expert, train-bc and calibrate-eps with no out:=, as a user runs them."""
     before = package_files()

@@ -24,7 +24,7 @@ import torch
 from ..adversary import AdversaryConfig, train_adversary
 from ..args import arg, module_config
 from ..envs import make_gym_env
-from ..registry import DEFAULT_ENV
+from ..registry import DEFAULT_ENV, MAX_EPS
 
 
 @dataclass
@@ -32,10 +32,11 @@ class AdversaryBenchConfig:
     """Arguments of ``python -m aril_ros.benchmarks.adversary``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    steps: int = arg(65_536, "env steps per measurement")
-    n_envs: int = arg(64, "our simulators side by side (and SB3's vectorised measurement); 4096 steps per update")
-    eps: float = arg(0.05, "the adversary's budget")
-    repeats: int = arg(1, "turns of the three measurements; each figure is its best turn", low=1)
+    steps: int = arg(65_536, "env steps per measurement", low=1, high=10**9)
+    n_envs: int = arg(64, "our simulators side by side (and SB3's vectorised measurement); 4096 steps per update",
+                      low=1, high=1024)
+    eps: float = arg(0.05, "the adversary's budget", low=0.0, high=MAX_EPS)
+    repeats: int = arg(1, "turns of the three measurements; each figure is its best turn", low=1, high=100)
 
 
 def ours(cfg) -> float:

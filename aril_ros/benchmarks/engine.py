@@ -25,7 +25,7 @@ from ..args import arg, module_config
 from ..attacks import make_attack
 from ..envs import layout_of, make_gym_env
 from ..policy import resolve_policy
-from ..registry import DEFAULT_ENV, MODES
+from ..registry import DEFAULT_ENV, MAX_EPS, MODES
 from ..rollout import RolloutEngine
 
 
@@ -34,14 +34,15 @@ class BenchConfig:
     """Arguments of ``python -m aril_ros.benchmarks.engine``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    steps: int = arg(20_000, "environment steps per measurement")
-    rounds: int = arg(4, "interleaved slices each measurement is split into; each figure is its best slice")
-    n_envs: int = arg(32, "simulators the engine runs side by side")
-    physics_threads: int = arg(0, "threads stepping the engine's physics (0: one per core)")
+    steps: int = arg(20_000, "environment steps per measurement", low=1, high=10**9)
+    rounds: int = arg(4, "interleaved slices each measurement is split into; each figure is its best slice",
+                      low=1, high=1000)
+    n_envs: int = arg(32, "simulators the engine runs side by side", low=1, high=1024)
+    physics_threads: int = arg(0, "threads stepping the engine's physics (0: one per core)", low=0, high=256)
     policy: str = arg("bundled", "the acting policy: bundled (the graph's default), another bundled name or a policy "
                                  "file; the bundled expert labels")
-    eps: float = arg(0.05, "attack budget for the attacked modes")
-    threads: int = arg(1, "torch threads")
+    eps: float = arg(0.05, "attack budget for the attacked modes", low=0.0, high=MAX_EPS)
+    threads: int = arg(1, "torch threads", low=1, high=256)
 
 
 def raw_steps(env_id: str):

@@ -27,10 +27,11 @@ class SweepBenchConfig:
     """Arguments of ``python -m aril_ros.benchmarks.sweep``."""
 
     env: str = arg("Swimmer-v5", "gymnasium MuJoCo env id (one with a bundled DAgger learner and its ARIL-A)")
-    repeats: int = arg(2, "how many times the 8 evaluations (4 attacks x 2 modes) run, on other episodes each time")
-    episodes: int = arg(4, "episodes per evaluation")
-    horizon: int = arg(1000, "steps per episode")
-    workers: int = arg(2, "CPUs of the embedded local Ray")
+    repeats: int = arg(2, "how many times the 8 evaluations (4 attacks x 2 modes) run, on other episodes each time",
+                       low=1, high=100)
+    episodes: int = arg(4, "episodes per evaluation", low=1, high=100_000)
+    horizon: int = arg(1000, "steps per episode", low=1, high=1_000_000)
+    workers: int = arg(2, "CPUs of the embedded local Ray", low=1, high=1024)
     address: str = arg("", "a Ray cluster to run the sweep on instead (<head ip>:6379, or auto: the one this machine has joined)")
 
 

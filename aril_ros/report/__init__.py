@@ -87,18 +87,20 @@ class ReportConfig:
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attack modes")
     seeds: str = arg("", "training seeds per defense (seed 0: the bundled policies; others are trained)")
     episodes: int = arg(0, f"deterministic evaluation episodes per table cell and seed (env seeds "
-                           f"{DEFENSE_TABLE}...)")
-    sweep_episodes: int = arg(0, "episodes per eps-sweep point and seed")
+                           f"{DEFENSE_TABLE}...)", low=0, high=100_000)
+    sweep_episodes: int = arg(0, "episodes per eps-sweep point and seed", low=0, high=100_000)
     sweep_scales: str = arg("", "eps sweep points as multiples of the calibrated eps (besides 0 and 1)")
     sweep_attacks: str = arg("", "attacks of the eps sweeps")
-    adversary_steps: int = arg(1_000_000, "ARIL-A steps against each defense and seed that has no adversary yet")
-    horizon: int = arg(HORIZON, f"steps per episode (the paper's {HORIZON}; fewer only for a smoke test)")
+    adversary_steps: int = arg(1_000_000, "ARIL-A steps against each defense and seed that has no adversary yet",
+                               low=1, high=10**9)
+    horizon: int = arg(HORIZON, f"steps per episode (the paper's {HORIZON}; fewer only for a smoke test)",
+                       low=1, high=1_000_000)
     workers: int = arg(2, "CPUs of the local Ray the trainings and evaluations run on as tasks, one CPU each (1: one "
-                          "after the other in this process, without Ray)")
+                          "after the other in this process, without Ray)", low=1, high=1024)
     address: str = arg("", "run the tasks on this Ray cluster instead (<head ip>:6379, or auto for the one "
                            "this machine has joined; workers:= is then ignored)")
     perf: bool = arg(True, "run the benchmarks (the performance section)")
-    bench_steps: int = arg(0, "steps per engine and adversary benchmark")
+    bench_steps: int = arg(0, "steps per engine and adversary benchmark", low=0, high=10**9)
     render: bool = arg(False, "render GIFs of an attack (MuJoCo offscreen on the CPU) for render_envs")
     render_envs: str = arg(DEFAULT_ENV, "envs to render when render:=true (both modes each)")
     work_dir: str = arg("runs/report", "trained seeds, their adversaries and the evaluation cache")

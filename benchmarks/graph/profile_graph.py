@@ -1,7 +1,7 @@
 """Where a step's CPU goes: milliseconds of CPU per step of each process, for the graph in each mode and for the
-bare rclpy chain it is measured against (:mod:`aril_ros_nodes.bare_chain`).
+bare rclpy chain it is measured against (:mod:`benchmarks.graph.bare_chain`).
 
-    .venv/bin/python -m aril_ros_nodes.profile_graph env:=HalfCheetah-v5 steps:=2000
+    .venv/bin/python -m benchmarks.graph.profile_graph env:=HalfCheetah-v5 steps:=2000
 
 On a machine with fewer cores than processes every process's CPU is on the critical path, so the totals bound
 the steps/s: the graph can reach at most (bare total) / (graph total) of the bare chain's rate. Each figure is the
@@ -20,27 +20,27 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from aril_ros.args import arg, module_config
-from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
-from aril_ros_nodes.bench_graph import bare_chain_steps_per_s
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode
 from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
+from benchmarks.graph.bench_graph import bare_chain_steps_per_s
 
 TICKS = os.sysconf("SC_CLK_TCK")
 
 
 @dataclass
 class ProfileConfig:
-    """Arguments of ``python -m aril_ros_nodes.profile_graph``."""
+    """Arguments of ``python -m benchmarks.graph.profile_graph``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id (the bare chain steps HalfCheetah-v5 whatever it is)")
-    steps: int = arg(2000, "steps of the window each figure is measured over", low=100)
-    eps: float = arg(0.05, "attack budget")
+    steps: int = arg(2000, "steps of the window each figure is measured over", low=100, high=10**9)
+    eps: float = arg(0.05, "attack budget", low=0.0, high=MAX_EPS)
 
 
 def process_name(pid: int, cmdline: str) -> str | None:
     """Which part of a run a process is: this one, a graph node by its module, a bare-chain role; None if neither."""
     if pid == os.getpid():
         return "this process (orchestrator and recorder / bare simulator)"
-    if "aril_ros_nodes.bare_chain" in cmdline:
+    if "benchmarks.graph.bare_chain" in cmdline:
         return "bare " + cmdline.split("role:=")[1].split()[0]
     for node in ("simulator", "attacker", "policy", "expert"):
         if f"aril_ros_nodes.{node}_node" in cmdline:
@@ -127,7 +127,7 @@ def graph_run(cfg: ProfileConfig, mode: str):
 
 
 def main(argv):
-    cfg = module_config(ProfileConfig, "python -m aril_ros_nodes.profile_graph", __doc__, argv)
+    cfg = module_config(ProfileConfig, "python -m benchmarks.graph.profile_graph", __doc__, argv)
     if cfg is None:
         return
     import torch

@@ -1,6 +1,6 @@
 """The bare rclpy chain the graph benchmark measures the graph against: the same four roles with nothing else.
 
-    python -m aril_ros_nodes.bare_chain --ros-args -p role:=policy    # or attacker, expert
+    python -m benchmarks.graph.bare_chain --ros-args -p role:=policy    # or attacker, expert
 
 A gymnasium HalfCheetah step (the simulator: :func:`steps_per_s`, in the benchmark's own process), an attacker
 adding noise to the state, a 64x64 MLP policy acting on the noisy observation and a 256x256 MLP expert answering
@@ -15,12 +15,16 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from aril_ros_nodes.common import STEP_QOS, main_for
+
+CHECKOUT = Path(__file__).resolve().parents[2]
+"""Where ``python -m benchmarks.graph.bare_chain`` finds this module (it is not installed)."""
 
 ENV_ID = "HalfCheetah-v5"
 OBS_DIM, ACT_DIM = 17, 6  # HalfCheetah's
@@ -79,9 +83,9 @@ def steps_per_s(steps: int, env: dict, mark=lambda: None) -> float:
     import rclpy
     from rclpy.experimental import EventsExecutor
 
-    roles = [subprocess.Popen([sys.executable, "-m", "aril_ros_nodes.bare_chain", "--ros-args",
+    roles = [subprocess.Popen([sys.executable, "-m", "benchmarks.graph.bare_chain", "--ros-args",
                               "-p", f"role:={role}", "-r", f"__node:=bare_{role}"],
-                              env=env) for role in TOPICS]
+                              env=env, cwd=CHECKOUT) for role in TOPICS]  # this module is the checkout's only
     sim = gym.make(ENV_ID)
     obs, _ = sim.reset(seed=0)
     rclpy.init(args=[])

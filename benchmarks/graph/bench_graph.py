@@ -1,8 +1,8 @@
 """Graph throughput: steps/s of the ROS 2 graph per mode, with and without recording, as a ratio to the bare
-rclpy chain (:mod:`aril_ros_nodes.bare_chain`: the same four roles, nothing else) measured beside it, and the
+rclpy chain (:mod:`benchmarks.graph.bare_chain`: the same four roles, nothing else) measured beside it, and the
 in-process engine.
 
-    .venv/bin/python -m aril_ros_nodes.bench_graph env:=HalfCheetah-v5 steps:=2000
+    .venv/bin/python -m benchmarks.graph.bench_graph env:=HalfCheetah-v5 steps:=2000
 
 The graph figure is ``steps_per_s`` of the orchestrator behind ``run_graph.py`` (episodes only,
 start-up excluded); the bare chain is measured beside each mode's graph cells, in turn with them (``repeats``),
@@ -23,20 +23,20 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ros_domain
-from aril_ros.registry import DEFAULT_ENV, MODES, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode
 from aril_ros.rollout import RolloutEngine
-from aril_ros_nodes import bare_chain
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
+from benchmarks.graph import bare_chain
 
 
 @dataclass
 class GraphBenchConfig:
-    """Arguments of ``python -m aril_ros_nodes.bench_graph``."""
+    """Arguments of ``python -m benchmarks.graph.bench_graph``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)")
-    eps: float = arg(0.05, "attack budget")
-    bare_steps: int = arg(2000, "steps per bare-chain measurement")
+    steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)", low=1, high=10**9)
+    eps: float = arg(0.05, "attack budget", low=0.0, high=MAX_EPS)
+    bare_steps: int = arg(2000, "steps per bare-chain measurement", low=1, high=10**9)
     repeats: int = arg(1, "runs of the bare chain, the graph and the graph with recording per mode, in turn; each "
                           "cell is the best of them", low=1, high=20)
 
@@ -71,7 +71,7 @@ def bare_chain_steps_per_s(steps: int, mark=lambda: None) -> float:
 
 
 def main(argv):
-    cfg = module_config(GraphBenchConfig, "python -m aril_ros_nodes.bench_graph", __doc__, argv)
+    cfg = module_config(GraphBenchConfig, "python -m benchmarks.graph.bench_graph", __doc__, argv)
     if cfg is None:
         return
     import torch

@@ -1,8 +1,8 @@
 """Soak: several long ``run_graph.py`` runs at once; the memory (RSS) of every process at the start and
 the end, steps/s over time, the shutdown time, and every log validated with ``read_run``.
 
-    .venv/bin/python -m aril_ros_nodes.bench_soak                                   # 3 runs x 50 episodes x 1000 steps
-    .venv/bin/python -m aril_ros_nodes.bench_soak episodes:=10 horizon:=500         # the quick version, a few minutes
+    .venv/bin/python -m benchmarks.graph.bench_soak                                   # 3 runs x 50 episodes x 1000 steps
+    .venv/bin/python -m benchmarks.graph.bench_soak episodes:=10 horizon:=500         # the quick version, a few minutes
 
 Each run is a ``run_graph.py`` process in a ROS domain of its own (``domain:=auto``) with its four nodes,
 recording to a temporary MCAP file. Every ``sample`` seconds the RSS of each process is read from
@@ -35,14 +35,14 @@ PAGE_MB = 4096 / 2**20
 
 @dataclass
 class SoakConfig:
-    """Arguments of ``python -m aril_ros_nodes.bench_soak``."""
+    """Arguments of ``python -m benchmarks.graph.bench_soak``."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     mode: str = arg("sensory", f"one of {', '.join(MODES)}")
-    episodes: int = arg(50, "episodes per run", low=1)
-    horizon: int = arg(1000, "steps per episode", low=1)
+    episodes: int = arg(50, "episodes per run", low=1, high=100_000)
+    horizon: int = arg(1000, "steps per episode", low=1, high=1_000_000)
     runs: int = arg(3, "runs at once", low=1, high=20)
-    sample: float = arg(1.0, "seconds between memory readings", low=0.1)
+    sample: float = arg(1.0, "seconds between memory readings", low=0.1, high=3600.0)
 
 
 @dataclass
@@ -142,7 +142,7 @@ def check_log(run: Run, summary: dict, cfg: SoakConfig) -> str:
 
 
 def main(argv):
-    cfg = module_config(SoakConfig, "python -m aril_ros_nodes.bench_soak", __doc__, argv)
+    cfg = module_config(SoakConfig, "python -m benchmarks.graph.bench_soak", __doc__, argv)
     if cfg is None:
         return 0
     with tempfile.TemporaryDirectory(prefix="aril_soak-") as folder:  # the logs, ~1.4 MB per 1000 steps each
