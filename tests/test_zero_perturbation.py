@@ -8,7 +8,7 @@ import pytest
 
 from aril_ros.attacks import NoAttack
 from aril_ros.envs import MujocoSim, layout_of
-from aril_ros.mcap_log import read_run
+from aril_ros.runlog import read_run
 from aril_ros.policy import load_policy
 from aril_ros.rollout import RolloutEngine, SimBatch
 from aril_ros.step import physical_state
