@@ -174,7 +174,10 @@ def ensure_ray():
         import ray
     except ModuleNotFoundError:
         print(f"[sweep] installing {RAY} (the cluster extra; once)", file=sys.stderr, flush=True)
-        subprocess.run([sys.executable, "-m", "pip", "install", "--disable-pip-version-check", "-q", RAY], check=True)
+        # in a checkout, under its pins (constraints.txt): ray's own requirements must not move what made the tables
+        pins = Path(__file__).resolve().parents[1] / "constraints.txt"
+        subprocess.run([sys.executable, "-m", "pip", "install", "--disable-pip-version-check", "-q", RAY,
+                        *(["-c", str(pins)] if pins.exists() else [])], check=True)
         importlib.invalidate_caches()  # the import system listed site-packages before ray was in it
         import ray
     return ray
