@@ -90,8 +90,11 @@ def run_and_exit(argv) -> None:
     gone): Python's own teardown of torch and the DDS libraries would keep the user waiting 1-2.5 s more on
     a loaded machine."""
     code = main(argv)
-    sys.stdout.flush()
-    sys.stderr.flush()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BrokenPipeError:  # the reader left early (`run_graph.py --help | head`): nothing more to tell it
+        pass
     os._exit(code)
 
 
