@@ -89,12 +89,12 @@ def run_and_exit(argv) -> None:
     """:func:`main`, then end the process at once. The run is over (nodes stopped, log closed, DDS participant
     gone): Python's own teardown of torch and the DDS libraries would keep the user waiting 1-2.5 s more on
     a loaded machine."""
-    code = main(argv)
     try:
+        code = main(argv)
         sys.stdout.flush()
         sys.stderr.flush()
     except BrokenPipeError:  # the reader left early (`run_graph.py --help | head`): nothing more to tell it
-        pass
+        code = 1  # as Python itself ends on a broken pipe, without its traceback
     os._exit(code)
 
 
