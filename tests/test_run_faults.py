@@ -15,7 +15,7 @@ import pytest
 from aril_ros.runlog import read_run
 from aril_ros_nodes.launcher import last_error_line
 from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
-from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, run_graph
+from tests.conftest import ROOT, free_domain, policy_files, processes_in_domain, run_graph
 
 EPS_RANGE = "allowed 0 < eps <= 1.0"
 DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
@@ -55,7 +55,7 @@ def test_every_argument_is_checked_before_anything_starts(args, message):
 @pytest.mark.slow
 def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     domain = free_domain()
-    out = run_graph("episodes:=0", domain=domain, timeout=120)
+    out = run_graph("episodes:=0", domain=domain, timeout=120, process=True)  # the script's exit code and output
     assert out.returncode == 1
     assert out.stderr.strip() == "run_graph: error: episodes:=0 is out of range: allowed 1..100000"
 
