@@ -148,12 +148,13 @@ def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
 
 
 @pytest.mark.slow
-def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path):
+def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path, capsys):
+    from aril_ros.cli import main
+
     log, _ = recorded
     before = log.read_bytes()
-    out = subprocess.run([sys.executable, "-m", "aril_ros", "log-recover", f"input:={log}",
-                          f"out:={tmp_path / 'recovered.mcap'}"], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2 and f"{log}: a closed, readable run log (40 steps, interrupted: false)" in out.stderr
+    assert main(["log-recover", f"input:={log}", f"out:={tmp_path / 'recovered.mcap'}"]) == 2
+    assert f"{log}: a closed, readable run log (40 steps, interrupted: false)" in capsys.readouterr().err
     assert log.read_bytes() == before and not (tmp_path / "recovered.mcap").exists()
     documented = re.search(r"metadata record `aril_run_end` \(written last\): (.*?)\.\n",
                            (ROOT / "msgs_doc" / "README.md").read_text(), re.S)[1]
@@ -272,7 +273,9 @@ def test_a_full_disk_stops_the_run_with_a_clear_error_and_leaves_its_steps_recov
     run, original = read_run(tmp_path / "recovered.mcap", allow_interrupted=True), read_run(log)
     for name in COMPARED:
         np.testing.assert_array_equal(getattr(run, name), getattr(original, name)[:written], err_msg=name)
-    assert set(run.end) == END_KEYS
+    completed = min(written // 20, 2)  # horizon:=20: the episodes the kept steps hold whole
+    assert (run.end["steps"], run.end["interrupted"], run.end["episodes_completed"]) == (written, True, completed)
+    assert run.episode_stats == original.episode_stats[:completed]
 
 
 def test_the_domain_lock_directory_is_shared_by_every_user(monkeypatch, tmp_path):
