@@ -341,6 +341,22 @@ def simulator_and_prober(cwd=None):
         sim.wait(10)
 
 
+# ------------------------------------------------------------------------------------------------ Ray
+@contextlib.contextmanager
+def local_ray(cpus: int = 2):
+    """One embedded local Ray (``cpus`` CPUs) for the commands a test runs in the block, which join it
+    (:func:`aril_ros.sweep.connect`) instead of each starting and stopping a Ray of its own, and their worker
+    processes with it; shut down after. Started inside the block's environment: its workers inherit it."""
+    from aril_ros.sweep import connect
+
+    ray, started = connect("", cpus)
+    try:
+        yield ray
+    finally:
+        if started:
+            ray.shutdown()
+
+
 # ------------------------------------------------------------------------------------- step messages
 def cdr(header, names, **values) -> bytes:
     """A JointState of ``header`` as the nodes send it, serialised."""
