@@ -54,6 +54,28 @@ def free_domain() -> int:
     raise GraphError(f"no free ROS domain id among {RUN_DOMAINS[WORKER::WORKERS]}")
 
 
+SHARED_RUNS = {"recorded_files": "recorded-sensory-run", "recorded_run": "recorded-swimmer-run", "small_card": "ray"}
+"""Module-scoped fixtures that make a graph run or a scorecard, and the ``xdist_group`` of the tests that use one:
+on one worker it is made once, where tests spread over two workers would each make it. The scorecard's joins the
+Ray tests' group, of which its two-node test is one."""
+
+
+def pytest_collection_modifyitems(config, items):
+    """Each test's ``xdist_group`` (its own, or :data:`SHARED_RUNS`'), in its id as pytest-xdist's ``loadgroup``
+    reads it (``<id>@<group>``). pytest-xdist 3.8 writes it into ``item._nodeid``, which pytest 9 no longer reads
+    (the id is ``item._id``): without this no group would keep its tests on one worker."""
+    from _pytest.nodeid import NodeId
+
+    for item in items:
+        shared = [group for fixture, group in SHARED_RUNS.items() if fixture in item.fixturenames]
+        if shared and not item.get_closest_marker("xdist_group"):
+            item.add_marker(pytest.mark.xdist_group(shared[0]))
+        groups = sorted({str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+                         for mark in item.iter_markers("xdist_group")})
+        if getattr(config.option, "loadgroup", False) and groups and "@" not in item.nodeid:
+            item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(groups)}")
+
+
 # ------------------------------------------------------------------------------------------ policies
 def random_policy(env_id: str, seed: int = 0, hidden=(32, 32)) -> MLPPolicy:
     torch.manual_seed(seed)  # test-only: the fixture's weights, not library randomness
