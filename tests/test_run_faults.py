@@ -58,6 +58,10 @@ def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     out = run_graph("episodes:=0", domain=domain, timeout=120, process=True)  # the script's exit code and output
     assert out.returncode == 1
     assert out.stderr.strip() == "run_graph: error: episodes:=0 is out of range: allowed 1..100000"
+    handlers = [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)]
+    here = run_graph("episodes:=0", domain=domain)  # the suite's in-process runs give what the script gives
+    assert (here.returncode, here.stdout, here.stderr) == (out.returncode, out.stdout, out.stderr)
+    assert [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)] == handlers
 
 
 def test_a_node_log_s_last_error_is_an_error_line_or_none(tmp_path):
