@@ -119,15 +119,6 @@ def summarise_episodes(episodes: list[EpisodeStats]) -> dict:
             "returns": [round(float(r), 3) for r in returns]}
 
 
-def episode_stats(episode: np.ndarray, reward: np.ndarray, action: np.ndarray, expert_action: np.ndarray,
-                  delta: np.ndarray) -> list[EpisodeStats]:
-    """Per-episode figures of steps given as rows (a run log's), in order of first appearance."""
-    stats: dict[int, EpisodeStats] = {}
-    for row, e in enumerate(np.asarray(episode)):
-        stats.setdefault(int(e), EpisodeStats(int(e))).add(reward[row], action[row], expert_action[row], delta[row])
-    return list(stats.values())
-
-
 def missing_topics(have) -> list[str]:
     """The step topics a step still lacks (``have``: the topics it has); empty when it is complete."""
     return [t for t in P.STEP_TOPICS if t not in have]

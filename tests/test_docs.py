@@ -35,6 +35,8 @@ FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(([^)\s]+)\)")
 INLINE_CODE = re.compile(r"`([^`\n]+)`")
 KEY = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):=")
+PYTHON = re.compile(r"(^|/)python(\d(\.\d+)?)?$")
+"""An interpreter as a shown command names it (python, python3, .venv/bin/python): what ``-m <module>`` follows."""
 
 
 def rel(path: Path) -> str:
@@ -224,6 +226,8 @@ def wrong_commands(line: str, known: dict) -> list[str]:
     wrong, checked_keys = [], set()
     for i, token in enumerate(tokens):
         rest = tokens[i + 1:]
+        if token == "-m" and not (i and PYTHON.search(tokens[i - 1])):
+            continue  # another program's -m (run_tests.py -m "not slow": pytest's markers), not python's
         if token == "aril" or token.endswith("/aril") or (token == "-m" and rest and rest[0] == "aril_ros"):
             rest = rest[1:] if token == "-m" else rest
             if not rest or rest[0].startswith(("-", "<")):
@@ -273,6 +277,8 @@ def test_a_wrong_command_or_argument_is_found(known):
     assert wrong_commands("warm_start:=true blocks:=64", known) == ["blocks:=64: no command takes blocks:="]
     assert wrong_commands("python -m aril_ros.benchmarks.nothing", known) == [
         "python -m aril_ros.benchmarks.nothing: no such module"]
+    assert wrong_commands("python run_tests.py -m 'not slow'", known) == []  # pytest's -m, not python's
+    assert wrong_commands(".venv/bin/python -m aril_ros evaluate", known) == ["aril evaluate: no such command"]
 
 
 IMPORT = re.compile(r"^\s*(?:from\s+(aril_ros[\w.]*)\s+import\s+([\w\s,()]+)|import\s+(aril_ros[\w.]*))", re.M)

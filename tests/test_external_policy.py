@@ -7,41 +7,14 @@ import importlib.util
 import json
 import os
 import re
-import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from aril_ros.envs import MujocoSim, layout_of
 from aril_ros.runlog import read_run
-from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, ros_env, run_graph
-
-README = ROOT / "msgs_doc" / "README.md"
-
-
-def documented_node() -> str:
-    """The code block of the README's "Write your own policy node" section, as a user copies it."""
-    section = README.read_text().split("\n## Write your own policy node\n", 1)[1].split("\n## ", 1)[0]
-    return re.search(r"```python\n(.*?)```", section, re.DOTALL).group(1)
-
-
-def start_node(code: str, domain: int, tmp_path, *ros_args: str):
-    """``code`` as the user runs it: a file of its own, in the run's domain."""
-    path = tmp_path / "my_policy.py"
-    path.write_text(code)
-    return subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args], env=ros_env(domain),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def stop(node) -> None:
-    node.send_signal(signal.SIGINT)
-    try:
-        node.wait(10)
-    except subprocess.TimeoutExpired:
-        node.kill()
-        node.wait()
+from tests.conftest import (CONTRACT, ROOT, documented_node, free_domain, policy_files, processes_in_domain, run_graph,
+                            start_node, stop)
 
 
 @pytest.mark.slow
@@ -145,7 +118,7 @@ def test_the_env_table_in_the_doc_is_the_generated_one():
     spec = importlib.util.spec_from_file_location("env_table", ROOT / "msgs_doc" / "env_table.py")
     env_table = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(env_table)
-    assert env_table.table_in(README.read_text()) == env_table.env_table(), \
+    assert env_table.table_in(CONTRACT.read_text()) == env_table.env_table(), \
         "msgs_doc/README.md's env table is stale: python msgs_doc/env_table.py --write"
 
 

@@ -11,16 +11,15 @@ import pytest
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.registry import adversary_path, choose_attack
 from aril_ros.runlog import read_run
-from aril_ros.step import episode_stats
-from tests.test_external_policy import documented_node, start_node, stop
-from tests.test_graph import free_domain, run_graph, summary_of
+from tests.conftest import documented_node, episode_stats, free_domain, run_graph, start_node, stop, summary_of
 
 SHORT = dict(episodes=2, horizon=60, seed=0)
 
 
 @pytest.mark.slow
 def test_the_first_run_attacks_with_the_adversary_bundled_against_dagger_beside_the_clean_return(tmp_path):
-    out = run_graph("mode:=sensory", *(f"{k}:={v}" for k, v in SHORT.items()), f"record:={tmp_path / 'run.mcap'}")
+    out = run_graph("mode:=sensory", *(f"{k}:={v}" for k, v in SHORT.items()), f"record:={tmp_path / 'run.mcap'}",
+                    process=True)  # the README's first command, as a user runs it
     summary = summary_of(out)
     first = out.stderr.splitlines()[0]
     assert summary["attack"] == "aril_a" and "ARIL-A trained against DAgger" in first, first
@@ -64,6 +63,6 @@ def test_an_external_nodes_clean_baseline_is_a_clean_run_of_the_graph(tmp_path):
     assert summary["clean"]["source"] == "graph"
     run = read_run(tmp_path / "run-clean.mcap")
     assert not run.delta.any()
-    returns = [e.reward for e in episode_stats(run.episodes, run.reward, run.action, run.expert_action, run.delta)]
+    returns = [e.reward for e in episode_stats(run)]
     np.testing.assert_allclose(summary["clean"]["returns"], returns, atol=5e-4)  # the summary rounds to 3 places
     assert any("a clean run of the graph with the external node" in line for line in out.stdout.splitlines())

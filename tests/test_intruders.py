@@ -18,8 +18,7 @@ import pytest
 from aril_ros import protocol as P
 from aril_ros.protocol import StepTag
 from aril_ros.runlog import RunLogError, read_run
-from tests.test_graph import free_domain, policy_files, ros_env, run_graph
-from tests.test_probes import step_messages
+from tests.conftest import cdr, free_domain, policy_files, ros_env, run_graph, step_messages
 
 INJECT_AT = "0/5"  # the step at which the foreign node joins
 
@@ -217,7 +216,6 @@ def test_the_recorder_refuses_a_different_second_message_for_a_step(written):
 def test_a_malformed_frame_id_is_a_fault_naming_the_topic():
     from aril_ros_nodes.common import step_header
     from aril_ros.runlog import StepFault
-    from tests.test_probes import cdr
 
     recorder, _ = recorder_with_steps(1)
     header = step_header(StepTag(0, 0), 0)

@@ -23,7 +23,7 @@ from aril_ros.dataset import load_dagger_dataset
 from aril_ros.protocol import StepTag
 from aril_ros.registry import adversary_path
 from aril_ros.runlog import RunLogError, RunLogWriter, read_run, recover
-from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, run_graph, summary_of
+from tests.conftest import ROOT, episode_stats, free_domain, policy_files, processes_in_domain, run_graph, summary_of
 
 RUN = ("env:=Swimmer-v5", "mode:=sensory", "attack:=random", "eps:=0.1", "episodes:=2", "horizon:=20")
 COMPARED = ("true_obs", "obs", "delta", "action", "expert_action", "reward", "physics_state", "stamp_ns")
@@ -148,12 +148,13 @@ def test_readers_refuse_what_the_run_did_not_apply(recorded, tmp_path):
 
 
 @pytest.mark.slow
-def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path):
+def test_log_recover_refuses_a_closed_log_and_writes_what_msgs_doc_lists(recorded, tmp_path, capsys):
+    from aril_ros.cli import main
+
     log, _ = recorded
     before = log.read_bytes()
-    out = subprocess.run([sys.executable, "-m", "aril_ros", "log-recover", f"input:={log}",
-                          f"out:={tmp_path / 'recovered.mcap'}"], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2 and f"{log}: a closed, readable run log (40 steps, interrupted: false)" in out.stderr
+    assert main(["log-recover", f"input:={log}", f"out:={tmp_path / 'recovered.mcap'}"]) == 2
+    assert f"{log}: a closed, readable run log (40 steps, interrupted: false)" in capsys.readouterr().err
     assert log.read_bytes() == before and not (tmp_path / "recovered.mcap").exists()
     documented = re.search(r"metadata record `aril_run_end` \(written last\): (.*?)\.\n",
                            (ROOT / "msgs_doc" / "README.md").read_text(), re.S)[1]
@@ -272,7 +273,9 @@ def test_a_full_disk_stops_the_run_with_a_clear_error_and_leaves_its_steps_recov
     run, original = read_run(tmp_path / "recovered.mcap", allow_interrupted=True), read_run(log)
     for name in COMPARED:
         np.testing.assert_array_equal(getattr(run, name), getattr(original, name)[:written], err_msg=name)
-    assert set(run.end) == END_KEYS
+    completed = min(written // 20, 2)  # horizon:=20: the episodes the kept steps hold whole
+    assert (run.end["steps"], run.end["interrupted"], run.end["episodes_completed"]) == (written, True, completed)
+    assert run.episode_stats == original.episode_stats[:completed]
 
 
 def test_the_domain_lock_directory_is_shared_by_every_user(monkeypatch, tmp_path):
@@ -396,14 +399,8 @@ def test_the_end_record_holds_each_episode_s_figures_as_its_steps_sum_to(recorde
     """The recorder takes them once, as it writes the steps; a reader (a graph round's collector) finds them there."""
     log, summary, _ = recorded_run
     run = read_run(log)
-    summed = []
-    for episode in np.unique(run.episodes):
-        rows = run.episodes == episode
-        summed.append((int(episode), sum(run.reward[rows].tolist()),  # step by step, as a run adds them up
-                       sum(((run.action[rows] - run.expert_action[rows]) ** 2).sum(1).tolist()),
-                       int(rows.sum()), float(np.abs(run.delta[rows]).max()), True))
-    recorded = [(e.episode, e.reward, e.squared_loss, e.steps, e.max_delta, e.done) for e in run.episode_stats]
-    assert recorded == summed and run.end["episodes_completed"] == 2
+    assert run.episode_stats == episode_stats(run) and run.end["episodes_completed"] == 2
+    assert [(e.steps, e.done) for e in run.episode_stats] == [(20, True), (20, True)]  # horizon:=20, truncated
     assert summary["returns"] == [round(e.reward, 3) for e in run.episode_stats]
 
 

@@ -1,5 +1,5 @@
 """Query-based attacks through the graph: their probes go to the policy node and back on the step topics, are
-recorded as probes, and never change the trajectory. The graph runs use the helpers of test_graph."""
+recorded as probes, and never change the trajectory."""
 from __future__ import annotations
 
 import time
@@ -14,8 +14,8 @@ from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
 from aril_ros.runlog import RunLogWriter, read_run, recover
-from tests.test_graph import (assert_same_steps, policy_files, run_graph, run_with_external, simulator_and_prober,
-                              summary_of)
+from tests.conftest import (assert_same_steps, cdr, free_domain, policy_files, ros_env, run_graph, run_with_external,
+                            simulator_and_prober, step_messages, summary_of)
 
 
 def test_a_probe_tag_names_its_step_and_is_no_step_tag():
@@ -126,29 +126,6 @@ def test_the_simulator_never_steps_on_a_probe():
         np.testing.assert_array_equal(heard["0/1"].position, obs)
 
 
-def cdr(header, names, **values) -> bytes:
-    from rclpy.serialization import serialize_message
-
-    from aril_ros_nodes.common import joint_state
-
-    return serialize_message(joint_state(header, names, **values))
-
-
-def step_messages(tag: StepTag, stamp: int, done: bool) -> dict[str, bytes]:
-    from rclpy.serialization import serialize_message
-    from rosgraph_msgs.msg import Clock
-
-    from aril_ros_nodes.common import step_header
-
-    header = step_header(tag, stamp)
-    state = [float(tag.step), 1.0]
-    return {P.CLOCK: serialize_message(Clock(clock=header.stamp)), P.PHYSICS: cdr(header, ["q"], position=[0.0]),
-            P.STATE: cdr(header, ["x", "y"], position=state), P.PERTURBATION: cdr(header, ["x", "y"], position=[0, 0]),
-            P.OBSERVATION: cdr(header, ["x", "y"], position=state), P.ACTION: cdr(header, ["u"], effort=[0.5]),
-            P.EXPERT_ACTION: cdr(header, ["u"], effort=[0.0]),
-            P.REWARD: cdr(header, P.REWARD_NAMES, position=[1.0, 0.0, float(done)])}
-
-
 def probe_messages(probe: ProbeTag, stamp: int) -> dict[str, bytes]:
     from aril_ros_nodes.common import step_header
 
@@ -239,7 +216,6 @@ def test_the_policy_node_is_ready_only_once_every_listener_on_action_has_matched
     from std_msgs.msg import String
 
     from aril_ros_nodes.common import READY_QOS, STEP_QOS
-    from tests.test_graph import free_domain, ros_env
 
     domain = free_domain()
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

@@ -11,6 +11,7 @@ from aril_ros.report import ReportConfig, build_report
 from aril_ros.report.stats import summarise, t95, worst_attack
 from aril_ros.report.tables import table_markdown
 from aril_ros.report.text import _budgets
+from tests.conftest import local_ray
 
 
 def quiet(*args, **kwargs):
@@ -79,43 +80,44 @@ def test_a_cell_that_could_not_be_produced_says_why():
 def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp_path):
     cfg = ReportConfig(envs="Swimmer-v5", modes="physical", episodes=2, sweep_episodes=1, horizon=40, perf=False,
                        work_dir=str(tmp_path / "work"), out=str(tmp_path / "docs" / "results.md"))
-    logged = []
-    out = build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-    text = out.read_text()
-    figures = tmp_path / "docs" / "results"
-    payload = json.loads((figures / "report.json").read_text())
-    # 5 defenses x (clean + 4 attacks + 4 sweep attacks x 2 scales)
-    assert len(payload["evaluations"]) == 5 * (6 + 5 * 2)
-    for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
-                "DART", "ARIL"):
-        assert f"| {row} |" in text
-    assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
-    assert "Ant's contact-force" not in text
-    assert "| Swimmer-v5 physical seed 0 | 10 | pi_8 | 1,000,000 steps per round, fresh each round, the strongest of 3 |" in text
-    assert (figures / "sweep-Swimmer-v5-physical.png").stat().st_size > 10_000
-    assert (figures / "aril-rounds.png").exists() and "results/aril-rounds.png" in text
-    # every table figure is the mean of the episodes recorded in the JSON
-    dagger_clean = next(e for e in payload["evaluations"]
-                        if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
-    assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
-    assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
-    # the cache is committed (benchmarks/scripts/full-protocol.sh): bundled files by their path in the checkout
-    cached_policies = {json.loads(f.read_text())["job"]["policy"] for f in (tmp_path / "work" / "cache").glob("*.json")}
-    assert "aril_ros/data/dagger/Swimmer-v5.pt" in cached_policies
-    assert not any(Path(p).is_absolute() and not p.startswith(str(tmp_path)) for p in cached_policies)
-    # the CPU the evaluations ran on (another model gives other returns from the same files)
-    assert payload["evaluated_on"] == {cpu(): 80} and f"; evaluated on {cpu()} (another MuJoCo" in text
-    # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
-    stages = payload["compute"]["stages"]
-    assert stages["evaluations"] == {**stages["evaluations"], "tasks": 80, "untimed": 0}
-    assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5
-    hours = payload["compute"]["hours_on_cores"]
-    assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
-    logged.clear()
-    build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-    assert any("80 evaluations: 80 cached, 0 to run" in line for line in logged)
-    assert "distinct evaluations" not in text and "0 of 80 distinct evaluations run here" in out.read_text()
-    assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
+    with local_ray():  # one Ray for both builds, each of which would start its own
+        logged = []
+        out = build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
+        text = out.read_text()
+        figures = tmp_path / "docs" / "results"
+        payload = json.loads((figures / "report.json").read_text())
+        # 5 defenses x (clean + 4 attacks + 4 sweep attacks x 2 scales)
+        assert len(payload["evaluations"]) == 5 * (6 + 5 * 2)
+        for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
+                    "DART", "ARIL"):
+            assert f"| {row} |" in text
+        assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
+        assert "Ant's contact-force" not in text
+        assert "| Swimmer-v5 physical seed 0 | 10 | pi_8 | 1,000,000 steps per round, fresh each round, the strongest of 3 |" in text
+        assert (figures / "sweep-Swimmer-v5-physical.png").stat().st_size > 10_000
+        assert (figures / "aril-rounds.png").exists() and "results/aril-rounds.png" in text
+        # every table figure is the mean of the episodes recorded in the JSON
+        dagger_clean = next(e for e in payload["evaluations"]
+                            if e["key"]["defense"] == "dagger" and e["key"]["attack"] == "none")
+        assert f"| DAgger, clean | {np.mean(dagger_clean['returns']):.0f} ±" in text
+        assert payload["files"]["aril_ros/data/dagger/Swimmer-v5.pt"] and payload["command"].startswith("aril report")
+        # the cache is committed (benchmarks/scripts/full-protocol.sh): bundled files by their path in the checkout
+        cached_policies = {json.loads(f.read_text())["job"]["policy"] for f in (tmp_path / "work" / "cache").glob("*.json")}
+        assert "aril_ros/data/dagger/Swimmer-v5.pt" in cached_policies
+        assert not any(Path(p).is_absolute() and not p.startswith(str(tmp_path)) for p in cached_policies)
+        # the CPU the evaluations ran on (another model gives other returns from the same files)
+        assert payload["evaluated_on"] == {cpu(): 80} and f"; evaluated on {cpu()} (another MuJoCo" in text
+        # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
+        stages = payload["compute"]["stages"]
+        assert stages["evaluations"] == {**stages["evaluations"], "tasks": 80, "untimed": 0}
+        assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5
+        hours = payload["compute"]["hours_on_cores"]
+        assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
+        logged.clear()
+        build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
+        assert any("80 evaluations: 80 cached, 0 to run" in line for line in logged)
+        assert "distinct evaluations" not in text and "0 of 80 distinct evaluations run here" in out.read_text()
+        assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 
 def test_bad_report_arguments_are_refused(tmp_path):

@@ -15,7 +15,7 @@ import pytest
 from aril_ros.runlog import read_run
 from aril_ros_nodes.launcher import last_error_line
 from aril_ros_nodes.orchestrator import GraphConfig, Orchestrator
-from tests.test_graph import ROOT, free_domain, policy_files, processes_in_domain, run_graph
+from tests.conftest import ROOT, free_domain, policy_files, processes_in_domain, run_graph
 
 EPS_RANGE = "allowed 0 < eps <= 1.0"
 DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
@@ -55,9 +55,13 @@ def test_every_argument_is_checked_before_anything_starts(args, message):
 @pytest.mark.slow
 def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     domain = free_domain()
-    out = run_graph("episodes:=0", domain=domain, timeout=120)
+    out = run_graph("episodes:=0", domain=domain, timeout=120, process=True)  # the script's exit code and output
     assert out.returncode == 1
     assert out.stderr.strip() == "run_graph: error: episodes:=0 is out of range: allowed 1..100000"
+    handlers = [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)]
+    here = run_graph("episodes:=0", domain=domain)  # the suite's in-process runs give what the script gives
+    assert (here.returncode, here.stdout, here.stderr) == (out.returncode, out.stdout, out.stderr)
+    assert [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)] == handlers
 
 
 def test_a_node_log_s_last_error_is_an_error_line_or_none(tmp_path):

@@ -12,7 +12,7 @@ from aril_ros.runlog import read_run
 from aril_ros.policy import load_policy
 from aril_ros.rollout import RolloutEngine, SimBatch
 from aril_ros.step import physical_state
-from tests.test_graph import assert_same_steps, policy_files, run_graph, summary_of
+from tests.conftest import assert_same_steps, policy_files, run_graph, summary_of
 
 FIELDS = ("true_obs", "obs", "delta", "action", "expert_action", "reward", "length")
 ENVS = ["HalfCheetah-v5", "Ant-v5", "Swimmer-v5", "Hopper-v5"]
