@@ -243,8 +243,7 @@ def wrong_commands(line: str, known: dict) -> list[str]:
             wrong += [f"run_graph.py {k}:= (no such argument)" for k in given if k not in known["run_graph"]]
             checked_keys.update(given)
         elif token == "-m" and rest and rest[0] not in ("aril_ros", "aril_ros_nodes.run_graph", "pytest") \
-                and i and tokens[i - 1].rsplit("/", 1)[-1].startswith("python") \
-                and "<" not in rest[0]:  # python -m aril_ros.benchmarks.<name>: a placeholder; run_tests.py -m: a marker
+                and "<" not in rest[0]:  # python -m aril_ros.benchmarks.<name>: a placeholder
             module = rest[0]
             if importlib.util.find_spec(module) is None:
                 wrong.append(f"python -m {module}: no such module")
