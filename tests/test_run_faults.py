@@ -64,6 +64,15 @@ def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     assert [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)] == handlers
 
 
+def test_a_reader_that_leaves_before_the_help_is_written_gets_no_traceback():
+    """``python run_graph.py --help | head``: the pipe is closed before the help is written."""
+    proc = subprocess.Popen([sys.executable, str(ROOT / "run_graph.py"), "--help"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    stderr = proc.stderr.read().decode()
+    assert (proc.wait(60), stderr) == (1, "")  # Python's own exit code on a broken pipe, without its traceback
+
+
 def test_a_node_log_s_last_error_is_an_error_line_or_none(tmp_path):
     log = tmp_path / "policy.log"
     log.write_text("[INFO] [1.0] [policy]: waiting for 2 subscribers on action\n")
