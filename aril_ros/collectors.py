@@ -13,11 +13,10 @@ import numpy as np
 
 from . import plugins
 from .attacks import make_attack
-from .dataset import DaggerDataset
+from .dataset import DaggerDataset, dataset_of_run
 from .envs import HORIZON
 from .learner_config import LearnerConfig
 from .learner_run import LearnerRun
-from .dataset import dataset_of_run
 from .runlog import read_run
 
 
