@@ -152,16 +152,13 @@ def run_graph(*args, domain=None, timeout=180, besides=(), process=False) -> sub
     return out
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""The signals the orchestrator catches while it runs: their handlers in this process are put back after."""
-
-
 def run_graph_here(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
     """:func:`aril_ros_nodes.run_graph.main` in this process, from the checkout's folder, with file descriptors 1
     and 2 caught as a process's output would be (prints, and what rclpy's C logging writes), and an exception it
     lets through printed as the interpreter would, exit code 1. After ``timeout`` seconds it is stopped with
     ``subprocess.TimeoutExpired``, as the process would be. The environment and the signal handlers are this
     process's again after."""
+    from aril_ros_nodes.launcher import STOP_SIGNALS  # the orchestrator catches them while it runs
     from aril_ros_nodes.run_graph import main
 
     environ = dict(os.environ)
