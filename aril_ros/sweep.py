@@ -242,7 +242,8 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
               label: str = "tasks", log=print) -> Iterator[tuple[int, object]]:
     """``fn(*call)`` for each call, as Ray tasks of ``cpus`` CPUs each (in this process, in order, when ``workers``
     is 1 and no ``address`` is given); yields ``(index, result)`` as each finishes, the result being the exception
-    when ``fn`` raised one of ``failures`` (any other is raised). Produced files are at their paths when yielded."""
+    when ``fn`` raised one of ``failures`` (any other is raised: the task's own exception on Ray too, with Ray's
+    traceback of it as its cause). Produced files are at their paths when yielded."""
     progress = Progress(label, len(calls), workers, log)
     if not calls:
         return
@@ -286,9 +287,11 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
             try:
                 result, produced = ray.get(ready[0])
             except ray.exceptions.RayTaskError as err:
-                cause = err.as_instanceof_cause()
+                # the task's own exception, as the call in this process would raise it: a user's error keeps its one
+                # line (Ray's wrapper reads as the task's traceback), a bug shows that traceback as its cause
+                cause = err.cause
                 if not isinstance(cause, failures):
-                    raise cause from None
+                    raise cause from err
                 progress.finished(False)
                 yield index, cause
                 continue

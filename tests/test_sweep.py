@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from aril_ros.provenance import cpu
-from aril_ros.registry import adversary_path, bundled_file
+from aril_ros.registry import BundledFileError, adversary_path, bundled_file
 from aril_ros.report.jobs import FAILURES, evaluated_on, run_jobs
 from aril_ros.sweep import RAY, Kept, Produced, Shipped, connect, ensure_ray, kept_folder, run_tasks
 
@@ -33,9 +33,16 @@ def test_failures_named_by_the_caller_come_back_and_others_are_raised(workers):
     ray = connect("", workers)[0] if workers > 1 else None  # one embedded local Ray for both sweeps
     try:
         results = dict(run_tasks(math.sqrt, [(4.0,), (-1.0,), (9.0,)], workers, failures=FAILURES, log=quiet))
-        assert results[0] == 2.0 and results[2] == 3.0 and isinstance(results[1], ValueError)  # a missing cell
-        with pytest.raises(ZeroDivisionError):  # a bug, not a missing file: stops the sweep
+        # a missing cell, recorded by its own message (on Ray too: not the task's traceback)
+        assert results[0] == 2.0 and results[2] == 3.0 and str(results[1]) == "math domain error"
+        with pytest.raises(ZeroDivisionError) as bug:  # a bug, not a missing file: stops the sweep
             list(run_tasks(operator.truediv, [(1, 0)], workers, log=quiet))
+        # on Ray the task's traceback comes with it, as its cause
+        assert workers == 1 or "in _task" in str(bug.value.__cause__)
+        with pytest.raises(BundledFileError) as user_error:  # a user's error is raised as the task raised it
+            list(run_tasks(bundled_file, [("dagger", "Hopper-v5")], workers, log=quiet))
+        assert type(user_error.value) is BundledFileError and str(user_error.value).startswith("no dagger for Hopper-v5")
+        assert "\n" not in str(user_error.value)
     finally:
         if ray is not None:
             ray.shutdown()
