@@ -8,7 +8,8 @@ Student-t 95% interval, an eps sweep (0.25, 0.5, 1 and 2 x eps) per attack, the 
 expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, SPSA^k
 (zeroth order: it queries the policy's actions) and ARIL-A trained against *this* policy within the budget;
 and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
-calibrated one for the env and mode unless ``eps:=`` sets it.
+calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is
+another file in each mode, each with a clean cell of its own (a drop compares the same policy clean and attacked).
 
 A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
 ``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings; with ``via:=graph`` each
@@ -27,7 +28,8 @@ The node must keep answering from run to run (the runs follow one another in tha
 Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy name>/``)::
 
     scorecard.md             the page: per mode a table and the sweep figure
-    scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|
+    scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|;
+                             for a name trained per mode, the file scored in each mode
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps;
                              for an external node: another node needs another out:= folder)
@@ -152,10 +154,16 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     eps = {mode: cfg.eps or calibrated_eps(cfg.env, mode) for mode in modes}
     runner = runner_of(cfg, out)
+    # the policy under test in each mode: a per-mode name is another file in each, and each mode's drops compare
+    # that very file clean and attacked; any other policy is one, whose one clean cell serves every mode
+    policies = {mode: policy_in(cfg.policy, cfg.env, mode) for mode in modes}
+    tested = list(dict.fromkeys(policies.values()))
     with nullcontext() if cfg.policy == "external" else session(cfg.workers, cfg.address):
-        # the clean cell first (the same episodes as every other cell): an external node that waits for the run's
+        # the clean cells first (the same episodes as every other cell): an external node that waits for the run's
         # listeners before it subscribes (msgs_doc's) is then subscribed when ARIL-A's training asks it alone
-        [clean] = runner.run([cell(cfg, budget, "clean", "none", 0.0)], log, "scorecard clean cell")
+        cleans = runner.run([cell(cfg, budget, "clean", "none", 0.0, policy=policy) for policy in tested], log,
+                            "scorecard clean cell" + ("s" if len(tested) > 1 else ""))
+        clean = dict(zip(tested, cleans))
         adversaries = {mode: adversary_for(cfg, mode, eps[mode], budget, out / f"adversary-{mode}.pt", log)
                        for mode in modes} if "aril_a" in attacks else {}
         plan = [cell(cfg, budget, mode, attack, scale * eps[mode],
@@ -165,9 +173,11 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     results = {}
     for mode in modes:
         mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in attacks}
+        mode_clean = clean[policies[mode]]
         results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
-                         "adversary": str(adversaries.get(mode)), "clean": clean, "attacks": mode_cells,
-                         "worst": worst_case(clean, mode_cells)}
+                         **({"policy": policies[mode]} if policies[mode] != cfg.policy else {}),
+                         "adversary": str(adversaries.get(mode)), "clean": mode_clean, "attacks": mode_cells,
+                         "worst": worst_case(mode_clean, mode_cells)}
         plot_scorecard_sweep(results[mode], scales, f"{cfg.policy} on {cfg.env}, {mode}", out / f"sweep-{mode}.png")
     payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
                "scales": scales, "modes": results}
@@ -215,12 +225,13 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
     return budget, modes, attacks, scales
 
 
-def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str = "") -> EvalConfig:
-    """A cell of the plan: the policy's episodes in ``mode`` under ``attack`` at ``eps``, ARIL-A's ``adversary``
-    scaled to that eps (its perturbation times eps / its own eps), SPSA^k at the budget's queries (the other attacks
-    keep their own settings: fgsm_k's k is not SPSA's)."""
+def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str = "",
+         policy: str = "") -> EvalConfig:
+    """A cell of the plan: the episodes of ``policy`` (default: the policy as typed) in ``mode`` under ``attack`` at
+    ``eps``, ARIL-A's ``adversary`` scaled to that eps (its perturbation times eps / its own eps), SPSA^k at the
+    budget's queries (the other attacks keep their own settings: fgsm_k's k is not SPSA's)."""
     spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
-    return EvalConfig(env=cfg.env, policy=cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
+    return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
                       attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
                       horizon=cfg.horizon, **spsa)
 
@@ -253,11 +264,15 @@ def adversary_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, p
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:
-    """What the adversary trainer is told to attack (and its file records): the policy as typed, an external node
-    through ROS (``ros``), and for a bundled name trained per mode, which the trainer could not resolve alone, its
-    file, relative to here when it can be."""
-    if policy == "external":
-        return "ros"
+    """What the adversary trainer is told to attack (and its file records): an external node through ROS (``ros``),
+    else the policy in ``mode`` (:func:`policy_in`)."""
+    return "ros" if policy == "external" else policy_in(policy, env_id, mode)
+
+
+def policy_in(policy: str, env_id: str, mode: str) -> str:
+    """The policy under test in attacked ``mode``, as a run that may be in another mode (the clean one, the
+    adversary trainer's) must be told it: the policy as typed, and for a bundled name trained per mode, which such a
+    run could not resolve, its file for ``mode``, relative to here when it can be."""
     if policy not in PER_MODE_POLICIES:
         return policy
     path = bundled_file(policy, env_id, mode)

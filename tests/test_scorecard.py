@@ -3,10 +3,12 @@ import dataclasses
 import json
 import math
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from aril_ros.cell_runner import engine_cell
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.registry import ATTACKS
 from aril_ros.report.stats import t95
@@ -109,6 +111,50 @@ def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, messa
     with pytest.raises(ValueError, match=message):
         scorecard(ScorecardConfig(out=str(tmp_path / "card"), **changes), log=lambda *a, **k: None)
     assert not (tmp_path / "card").exists()
+
+
+def test_a_name_trained_per_mode_is_scored_in_each_mode_against_the_clean_cell_of_its_own_file(tmp_path):
+    """dr is another file in each mode: each mode's clean cell is that file's (aril eval of it), so that its drops
+    pair the same policy clean and attacked, and the page's clean row and drops are that mode's."""
+    from aril_ros.registry import bundled_file
+    from aril_ros.report.stats import paired_drop
+
+    cfg = ScorecardConfig(policy="dr", env="Swimmer-v5", episodes=2, horizon=25, scales="1", attacks="random",
+                          workers=1, out=str(tmp_path))
+    page = scorecard(cfg, log=lambda *a, **k: None).read_text()
+    modes = json.loads((tmp_path / "scorecard.json").read_text())["modes"]
+    for mode, r in modes.items():
+        own = bundled_file("dr", cfg.env, mode)
+        assert Path(r["policy"]).resolve() == own
+        clean = evaluate(EvalConfig(env=cfg.env, policy=str(own), episodes=2, seed=cfg.seed, horizon=25))
+        assert [round(e["return"], 3) for e in r["clean"]["episodes"]] == clean["returns"]
+        section = page.split(f"## {mode},")[1].split("## ")[0]
+        drop = paired_drop(r["clean"], r["attacks"]["random"]["1.0"])
+        assert f"| clean | {r['clean']['mean_return']:.1f} |" in section and f"`{r['policy']}`" in section
+        assert f"| {drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] |" in section
+    assert modes["sensory"]["clean"]["mean_return"] != modes["physical"]["clean"]["mean_return"]  # two policies
+
+
+def fails_as_a_user_error(job: dict):
+    """A cell (a sweep task) failing on a user's error: its policy a name trained per mode, asked in mode clean."""
+    return engine_cell({**job, "policy": "dr", "mode": "clean"})
+
+
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=[pytest.mark.slow, pytest.mark.xdist_group("ray")])])
+def test_an_error_inside_a_cell_reaches_the_user_as_one_line(workers, monkeypatch, capsys, tmp_path):
+    """In this process or as a Ray task: the CLI's one line naming the culprit, not the task's traceback."""
+    from contextlib import nullcontext
+
+    from aril_ros.cli import main
+    from tests.conftest import local_ray
+
+    monkeypatch.setattr("aril_ros.cell_runner.engine_cell", fails_as_a_user_error)
+    with local_ray() if workers > 1 else nullcontext():
+        code = main(["scorecard", "env:=Swimmer-v5", "policy:=dagger", "attacks:=random", "episodes:=1",
+                     "horizon:=5", f"workers:={workers}", f"out:={tmp_path}"])
+    [line] = capsys.readouterr().err.splitlines()
+    assert code == 2 and line.startswith("aril scorecard: error: the bundled dr policies are trained per attack "
+                                         "mode: it takes mode sensory or physical (got clean)")
 
 
 def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_name(monkeypatch, tmp_path):

@@ -237,6 +237,8 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
     for mode, r in card["modes"].items():
         worst = r["worst"]
         lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
+                  # a name trained per mode is another policy in each mode: the file of this one, clean row included
+                  *([f"The {policy} policy trained against {mode}: `{r['policy']}`.", ""] if "policy" in r else []),
                   f"**Worst case: {ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
                   f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
                   f"(clean {r['clean']['mean_return']:.1f}).", "",
