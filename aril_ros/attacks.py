@@ -18,7 +18,7 @@ import torch
 
 from .adversary_net import AdversaryNet, load_adversary
 from .envs import ObsLayout
-from .policy import in_blocks
+from .policy import in_blocks, load_policy
 from .registry import ATTACKS, QUERY_ATTACKS, WHITE_BOX, adversary_path, check_name
 from .step import disagreement
 
@@ -111,6 +111,16 @@ class FGSMk(FGSM):
 
     def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 10):
         super().__init__(layout, eps, victim, expert, steps)
+
+
+class TransferFGSM(FGSM):
+    """FGSM^k on a surrogate, applied to the victim: a white-box attack on a copy of the policy learned from its
+    answers (:mod:`aril_ros.surrogate`), black-box with respect to the victim itself, which it never asks."""
+
+    name = "transfer"
+
+    def __init__(self, layout: ObsLayout, eps: float, surrogate, expert, steps: int = 10):
+        super().__init__(layout, eps, surrogate, expert, steps)
 
 
 class QueryAttack(Attack):
@@ -252,7 +262,7 @@ class LearnedAttack(QueryAttack):
                          for row, rng in enumerate(rngs)])
 
 
-CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk, SPSA)}
+CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAttack, FGSM, FGSMk, TransferFGSM, SPSA)}
 
 
 def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: int = 0) -> bool:
@@ -267,12 +277,21 @@ def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: i
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None, rescale: bool = False,
                 search: int = 0, samples: int | None = None) -> Attack:
-    """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; spsa asks
+    """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; transfer the expert
+    and a surrogate file (``adversary``), on which it runs FGSM^k (``steps``), never asking the victim; spsa asks
     both for actions only (``steps``: its iterations, ``samples``: its directions per iteration); aril_a
     needs an adversary file (default: the bundled one against the bundled learner; its eps is the one it
     was trained with, unless ``rescale`` scales it to ``eps``) and, when it takes actions or searches
     (``search`` candidates), the victim and the expert to query."""
     check_name("attack", name, ATTACKS)
+    if name == "transfer":
+        if not adversary:
+            raise ValueError("attack transfer runs FGSM^k on a surrogate of the victim: pass its file as attack_file:= "
+                             "(aril fit-surrogate, or a scorecard's surrogate-<mode>.pt)")
+        if expert is None:
+            raise ValueError("attack transfer needs the expert, whose action its loss compares with")
+        return TransferFGSM(layout, eps, load_policy(adversary, layout.env_id), expert,
+                            **({} if steps is None else {"steps": steps}))
     if name == "aril_a":
         return _learned_attack(layout, eps, adversary, mode, rescale, victim, expert, search)
     if name in WHITE_BOX or name in QUERY_ATTACKS:

@@ -36,7 +36,8 @@ class EvalConfig:
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
                          "it ranks highest), the victim queried on all, the most damaging applied (0: no search)",
                       low=0, high=1000)
-    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
+    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary); transfer: the surrogate file "
+                                "(aril fit-surrogate)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its own: scale its perturbation by eps / its eps")
     episodes: int = arg(5, "number of episodes (env seeds seed, seed+1, ...)", low=1, high=100_000)
     seed: int = arg(seeds.USER, "seed of the first episode and of the attack noise", low=0, high=2**31 - 1)

@@ -36,8 +36,13 @@ MODES = ("clean", "sensory", "physical")
 ATTACKED_MODES = ("sensory", "physical")
 
 ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "spsa": "SPSA^k",
-           "aril_a": "ARIL-A"}
+           "aril_a": "ARIL-A", "transfer": "FGSM^k on a surrogate"}
 """Every attack by name, with the name tables print."""
+SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", "aril_a_search": "ARIL-A + search"}
+"""What a scorecard's rows name: the attacks, and two ways its black-box pipeline runs aril_a (an adversary of the
+zoo as it is; its own with query-time search)."""
+SURROGATE_ATTACKS = ("transfer",)
+"""Black-box attacks that compute on a surrogate of the victim (``attack_file``), never asking the victim."""
 WHITE_BOX = ("fgsm", "fgsm_k")
 """Attacks that need the victim's weights (gradients)."""
 QUERY_ATTACKS = ("spsa",)

@@ -54,17 +54,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import plugins, seeds
-from .adversary import load_adversary, ready_adversary
 from .args import arg, comma_list
 from .cell_runner import GRAPH_RUN_CPUS, CellRunner
 from .envs import HORIZON
 from .evaluation import EvalConfig
-from .policy import resolve_policy
-from .protocol import checked_domain, ros_domain
+from .policy import load_policy, resolve_policy
+from .protocol import checked_domain
 from .provenance import stamp
 from .registry import (
     ATTACKED_MODES,
-    ATTACKS,
+    SCORECARD_ATTACKS,
     DEFAULT_ENV,
     MAX_EPS,
     PER_MODE_POLICIES,
@@ -77,6 +76,7 @@ from .report.plots import plot_scorecard_sweep
 from .report.stats import paired_drop, worst_attack
 from .report.text import scorecard_markdown
 from .sweep import session
+from .verdict import SEARCH, BlackBoxAttacks, black_box_attacks, relative
 
 
 @dataclass(frozen=True)
@@ -89,24 +89,28 @@ class Budget:
     adversary_steps: int
     spsa_iterations: int
     spsa_samples: int
+    scales: str
+    """the eps sweep, as multiples of the mode's eps (the default of ``scales:=``)"""
 
     @property
     def spsa_queries(self) -> int:
         return 1 + self.spsa_iterations * (2 * self.spsa_samples + 1)
 
     def describe(self) -> str:
-        return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode, SPSA^k "
-                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
+        return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
+                f"the surrogate, SPSA^k {self.spsa_iterations} x {self.spsa_samples} directions "
+                f"({self.spsa_queries} queries per step), eps x {self.scales}")
 
 
-# quick: under 30 minutes against an external node on 2 cores (README, "Score your own policy"); full: the attacks'
-# own defaults (SPSA^k 5 x 8) and the paper's 1M adversary steps
-BUDGETS = {"quick": Budget(episodes=5, adversary_steps=120_000, spsa_iterations=1, spsa_samples=2),
-           "full": Budget(episodes=20, adversary_steps=1_000_000, spsa_iterations=5, spsa_samples=8)}
-SCALES = "0.25,0.5,1,2"
-"""The eps sweep, as multiples of the mode's eps (the default of ``scales:=``)."""
-SCORED_ATTACKS = ("random", "spsa", "aril_a", "fgsm", "fgsm_k")
+# quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
+# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8) and twice the paper's 1M steps
+BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1"),
+           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
+                          scales="0.25,0.5,1,2")}
+SCORED_ATTACKS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
+PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
+"""The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""
 VIAS = ("engine", "graph")
 
 
@@ -123,8 +127,9 @@ class ScorecardConfig:
     eps: float = arg(0.0, "the attack budget at scale 1 (0: the calibrated one for the env and each mode)",
                      low=0.0, high=MAX_EPS)
     expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
-    scales: str = arg(SCALES, "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is "
-                              "judged at eps)")
+    scales: str = arg("", "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is judged "
+                          "at eps); default: the budget's (" + "; ".join(f"{n} {b.scales}" for n, b in BUDGETS.items())
+                      + ")")
     attacks: str = arg("", "comma-separated attacks to score (default: every one that applies: "
                            f"{', '.join(SCORED_ATTACKS)}; an external node not the white-box {', '.join(WHITE_BOX)})")
     via: str = arg("", "where the cells run: engine (in this process or as sweep tasks: the fast path) or graph (each "
@@ -164,10 +169,9 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         cleans = runner.run([cell(cfg, budget, "clean", "none", 0.0, policy=policy) for policy in tested], log,
                             "scorecard clean cell" + ("s" if len(tested) > 1 else ""))
         clean = dict(zip(tested, cleans))
-        adversaries = {mode: adversary_for(cfg, mode, eps[mode], budget, out / f"adversary-{mode}.pt", log)
-                       for mode in modes} if "aril_a" in attacks else {}
-        plan = [cell(cfg, budget, mode, attack, scale * eps[mode],
-                     str(adversaries[mode]) if attack == "aril_a" else "")
+        made = {mode: pipeline_for(cfg, mode, eps[mode], budget, out, log)
+                for mode in modes} if set(attacks) & set(PIPELINE_ATTACKS) else {}
+        plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode))
                 for mode in modes for attack in attacks for scale in scales]
         cells = iter(runner.run(plan, log))
     results = {}
@@ -176,7 +180,8 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         mode_clean = clean[policies[mode]]
         results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
                          **({"policy": policies[mode]} if policies[mode] != cfg.policy else {}),
-                         "adversary": str(adversaries.get(mode)), "clean": mode_clean, "attacks": mode_cells,
+                         **(pipeline_record(made[mode]) if mode in made else {}), "clean": mode_clean,
+                         "attacks": mode_cells,
                          "worst": worst_case(mode_clean, mode_cells)}
         plot_scorecard_sweep(results[mode], scales, f"{cfg.policy} on {cfg.env}, {mode}", out / f"sweep-{mode}.png")
     payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
@@ -186,7 +191,8 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
     page.write_text(scorecard_markdown(payload, cfg.policy, f"{cfg.budget}: {budget.describe()}",
                                        via_of(cfg) == "graph"))
     log(f"[scorecard] {page}: " + "; ".join(
-        f"{mode} worst {ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%" for mode, r in results.items()))
+        f"{mode} worst {SCORECARD_ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%"
+        for mode, r in results.items()))
     return page
 
 
@@ -218,21 +224,28 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
     if via_of(cfg) == "graph":
         plugins.load("aril_ros.collectors", "graph")
     resolve_policy(cfg.expert, cfg.env)
-    scales = sorted(float(x) for x in comma_list(cfg.scales))
+    scales = sorted(float(x) for x in comma_list(cfg.scales or budget.scales))
     if 1.0 not in scales or min(scales) <= 0:
         raise ValueError(f"scales:={cfg.scales}: positive multiples of eps, 1 among them (the worst case is judged at "
                          "eps)")
     return budget, modes, attacks, scales
 
 
-def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float, adversary: str = "",
-         policy: str = "") -> EvalConfig:
-    """A cell of the plan: the episodes of ``policy`` (default: the policy as typed) in ``mode`` under ``attack`` at
-    ``eps``, ARIL-A's ``adversary`` scaled to that eps (its perturbation times eps / its own eps), SPSA^k at the
-    budget's queries (the other attacks keep their own settings: fgsm_k's k is not SPSA's)."""
+def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: float,
+         made: BlackBoxAttacks | None = None, policy: str = "") -> EvalConfig:
+    """A cell of the plan: the episodes of ``policy`` (default: the policy as typed) in ``mode`` under the scored
+    ``attack`` at ``eps``: what the black-box pipeline ``made`` for the mode runs as transfer (FGSM^k on its
+    surrogate), zoo and aril_a (its adversaries, scaled to that eps: their perturbation times eps / their own eps)
+    and aril_a_search (aril_a asking the policy about :data:`~aril_ros.verdict.SEARCH` candidates a step); SPSA^k at
+    the budget's queries (the other attacks keep their own settings: fgsm_k's k is not SPSA's)."""
     spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
-    return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode, attack=attack, eps=eps,
-                      attack_file=adversary, rescale=bool(adversary), episodes=budget.episodes, seed=cfg.seed,
+    files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
+             "aril_a_search": made and made.adversary}
+    learned = attack in ("zoo", "aril_a", "aril_a_search")
+    return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode,
+                      attack="aril_a" if learned else attack, eps=eps,
+                      attack_file=str(files[attack]) if attack in files else "", rescale=learned,
+                      search=SEARCH if attack == "aril_a_search" else 0, episodes=budget.episodes, seed=cfg.seed,
                       horizon=cfg.horizon, **spsa)
 
 
@@ -246,21 +259,20 @@ def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:
     return CellRunner(via_of(cfg), workers=cfg.workers, address=cfg.address, logs=logs)
 
 
-def adversary_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, path: Path, log) -> Path:
-    """ARIL-A trained against the policy in ``mode`` at ``eps``: the one at ``path`` when it was trained for the
-    same policy, eps and at least the budget's steps, else trained now (the longest part of a scorecard)."""
-    victim = victim_of(cfg.policy, cfg.env, mode)
-    if path.exists():
-        adversary = load_adversary(path)
-        made = adversary.meta.get("provenance", {})
-        if made.get("victim") == victim and made.get("steps", 0) >= budget.adversary_steps and adversary.eps == eps:
-            log(f"[scorecard] {mode}: reusing {path}")
-            return path
-    log(f"[scorecard] {mode}: training ARIL-A against {victim} ({budget.adversary_steps:,} steps, eps {eps:g}); "
-        "the longest part")
-    # an external node is asked through ROS, in its domain
-    with ros_domain(cfg.domain) if victim == "ros" else nullcontext():
-        return ready_adversary(path, victim, cfg.env, mode, eps, cfg.expert, budget.adversary_steps, True, log)
+def pipeline_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, out: Path, log) -> BlackBoxAttacks:
+    """The black-box pipeline's files for ``mode`` (:mod:`aril_ros.verdict`), in ``out``; a rerun reuses them."""
+    log(f"[scorecard] {mode}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
+        f"{budget.adversary_steps:,} steps against the surrogate (eps {eps:g})")
+    return black_box_attacks(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps, cfg.expert,
+                             budget.adversary_steps, out, cfg.domain, log)
+
+
+def pipeline_record(made: BlackBoxAttacks) -> dict:
+    """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo."""
+    made_by = load_policy(made.surrogate).meta.provenance
+    return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
+            "surrogate_queries": made_by["queries"], "zoo": relative(made.zoo), "zoo_screened": made.screened,
+            "adversary": relative(made.adversary)}
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

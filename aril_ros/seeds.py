@@ -24,6 +24,10 @@ SCORECARD = 4_000
 """``aril scorecard``: 4000..4999 (every cell the same episodes)."""
 SCAN = 5_000
 """``aril scan-adversary``: 5000..5999 (every point and the clean run the same episodes)."""
+SURROGATE = 6_000
+"""The black-box pipeline (:mod:`aril_ros.verdict`): the episodes its surrogate's victim drives, 6000..6499."""
+SCREENING = 6_500
+"""The black-box pipeline: the episodes on which the zoo's adversaries are screened, 6500..6999."""
 SELECTION = 10_000
 """Keeping the best during training (experts, GAIL, BC's check): 10000..10999."""
 GAIL_DEMOS = 20_000

@@ -34,7 +34,7 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import StepTag
-from aril_ros.registry import DEFAULT_ENV, QUERY_ATTACKS, WHITE_BOX, attack_budget, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, QUERY_ATTACKS, SURROGATE_ATTACKS, WHITE_BOX, attack_budget, attack_for_mode
 from aril_ros.step import episode_rng, physical_state, sensory_observation
 from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
                                    param_msg, publishers, subscribers)
@@ -60,7 +60,8 @@ class AttackerNode(Node):
         self.attack = make_attack(
             attack, self.layout, attack_budget(env_id, self.mode, attack, declared(self, "eps", 0.0)),
             victim=resolve_policy(victim_name, env_id, self.mode) if white_box else self.probes,
-            expert=resolve_policy(expert_name, env_id) if white_box or self.probes is not None else None,
+            expert=(resolve_policy(expert_name, env_id)
+                    if white_box or attack in SURROGATE_ATTACKS or self.probes is not None else None),
             steps=declared(self, "k", 0) or None, samples=declared(self, "samples", 0) or None,
             adversary=declared(self, "attack_file", ""), mode=self.mode, search=declared(self, "search", 0),
             rescale=declared(self, "rescale", False))

@@ -34,7 +34,8 @@ class GraphConfig:
     k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)", low=0, high=1000)
     samples: int = arg(0, "spsa: random directions per iteration, each asked at +- (0: the attack's default)",
                        low=0, high=1000)
-    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary)")
+    attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary); transfer: the surrogate file "
+                                "(aril fit-surrogate)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
     baseline: bool = arg(True, "run_graph.py, an attacked mode: the clean return of the same episodes beside the "
@@ -64,8 +65,9 @@ class GraphConfig:
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
 
 
-ONE_ATTACKS_ARGUMENTS = {"attack_file": "aril_a", "search": "aril_a", "rescale": "aril_a", "samples": "spsa"}
-"""Arguments that one attack alone reads, and that attack."""
+ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
+                         "samples": ("spsa",)}
+"""Arguments that some attacks alone read, and those attacks."""
 
 
 @dataclass(frozen=True)
@@ -141,10 +143,10 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
     domain_candidates(cfg.domain)  # a bad id is refused here, before any file is loaded
     # a bad mode or attack: a ValueError naming both; none named: the strongest bundled for the policy
     choice = choose_attack(cfg.env, cfg.mode, cfg.policy, cfg.attack, cfg.attack_file)
-    for name, user in ONE_ATTACKS_ARGUMENTS.items():  # elsewhere it would be silently ignored
-        if getattr(cfg, name) and choice.name != user:
-            raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by attack:={user} only, got "
-                                f"attack:={choice.name}")
+    for name, users in ONE_ATTACKS_ARGUMENTS.items():  # elsewhere it would be silently ignored
+        if getattr(cfg, name) and choice.name not in users:
+            raise ArgumentError(f"{name}:={getattr(cfg, name)} is used by "
+                                f"{' and '.join(f'attack:={u}' for u in users)} only, got attack:={choice.name}")
     if cfg.render:
         frame_size(cfg.render_size)
     if choice.name in WHITE_BOX and cfg.policy == "external":
@@ -168,8 +170,14 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
 
 
 def _adversary(cfg: GraphConfig, attack: str, file: str) -> tuple[Path | None, AdversaryNet | None]:
-    """aril_a's adversary file (``file``, else the bundled one) and network; a missing or mismatched file is
-    refused here. None for any other attack."""
+    """aril_a's adversary file (``file``, else the bundled one) and network, or transfer's surrogate file and no
+    network; a missing or mismatched file is refused here. None for any other attack."""
+    if attack == "transfer":
+        if not file:
+            raise ArgumentError("attack:=transfer runs FGSM^k on a surrogate of the policy: pass its file as "
+                                "attack_file:= (aril fit-surrogate)")
+        load_policy(file, cfg.env)
+        return Path(file).resolve(), None
     if attack != "aril_a":
         return None, None
     path, net = learned_adversary(cfg.env, cfg.mode, file, cfg.eps, cfg.rescale)

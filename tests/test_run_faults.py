@@ -38,7 +38,7 @@ DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
     ({"render": True, "render_every": 0}, "render_every:=0 is out of range: allowed >= 1"),
     ({"render": True, "render_size": "320"}, "render_size:=320 is not a frame size: <width>x<height>"),
     ({"attack": "random", "search": 4}, "search:=4 is used by attack:=aril_a only, got attack:=random"),
-    ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a only"),
+    ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a and attack:=transfer only"),
     ({"attack": "spsa", "rescale": True}, "rescale:=True is used by attack:=aril_a only, got attack:=spsa"),
     ({"samples": 4}, "samples:=4 is used by attack:=spsa only, got attack:=aril_a"),  # the default against DAgger
     ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "aril_ros/data/adversary/Swimmer-v5-sensory.pt was trained "

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..registry import ATTACKS, DEFENSES, PAPER_DEFENSES
+from ..registry import ATTACKS, DEFENSES, PAPER_DEFENSES, SCORECARD_ATTACKS
 from .stats import paired_drop, summarise
 
 
@@ -91,7 +91,7 @@ def plot_scorecard_sweep(result: dict, scales: list[float], title: str, path: Pa
         x = [sweep[s]["eps"] for s in scales]
         y = np.array([sweep[s]["mean_return"] for s in scales])
         half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in scales])
-        ax.plot(x, y, marker="o", ms=3, label=ATTACKS[attack])
+        ax.plot(x, y, marker="o", ms=3, label=SCORECARD_ATTACKS[attack])
         ax.fill_between(x, y - half, y + half, alpha=0.12)
     ax.axhline(clean, color="black", lw=1, ls="--", label="clean")
     ax.axvline(result["eps"], color="grey", lw=0.8, ls=":")

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..envs import layout_of
-from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES
+from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS
 from .compute import compute_lines
 from .paper import PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
 from .stats import paired_drop, worst_attack
@@ -223,6 +223,31 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
     return "\n".join(lines)
 
 
+HOW_ATTACKS_ASK = (
+    "How each attack uses the policy (none takes its weights but the white-box ones, which a file alone allows):",
+    "- random: not at all;",
+    "- SPSA^k: asks it about the points of its gradient estimate (the queries per step in the budget);",
+    "- FGSM^k on a surrogate (transfer): FGSM^k on a copy of the policy fitted to its answers (the surrogate: "
+    "its questions and held-out fidelity below); it asks the policy nothing while it attacks;",
+    "- ARIL-A from the zoo: the bundled adversary (none trained against this very file) that took the most return "
+    "from the surrogate on screening episodes; one question per step (the policy's action, an input);",
+    "- ARIL-A: trained against the surrogate, from the zoo's adversary; one question per step;",
+    "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step, the most "
+    "damaging applied;",
+    "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
+
+
+def pipeline_lines(mode_result: dict) -> list[str]:
+    """The page's line on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice."""
+    if "surrogate" not in mode_result:
+        return []
+    fidelity = mode_result["surrogate_fidelity"]
+    return [f"Surrogate `{mode_result['surrogate']}`: {mode_result['surrogate_queries']:,} questions to the policy, "
+            f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); zoo: `{mode_result['zoo']}`, the "
+            f"strongest of {len(mode_result['zoo_screened'])} against the surrogate; ARIL-A: "
+            f"`{mode_result['adversary']}`.", ""]
+
+
 def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool) -> str:
     """A scorecard's page (``scorecard.md``) from what its ``scorecard.json`` holds (``card``, its scales and the
     sweeps' keys floats), the policy as typed, the budget as a sentence, and whether its cells were runs of the
@@ -231,15 +256,16 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
     lines = [f"# Scorecard: {policy} on {settings['env']}", "",
              f"`{card['command']}` (revision {card['git_revision']}, {card['created']}). Budget {budget}; env seeds "
              f"{settings['seed']}..{settings['seed'] + episodes - 1} in every cell (paired), each "
-             f"{'a run of the ROS 2 graph' if through_graph else 'on the engine'}, ARIL-A trained against this "
-             "policy. Drop: mean of the per-episode differences from clean, in % of the clean return, with a "
-             "Student-t 95% interval. Every episode is in `scorecard.json`.", ""]
+             f"{'a run of the ROS 2 graph' if through_graph else 'on the engine'}. Drop: mean of the per-episode "
+             "differences from clean, in % of the clean return, with a Student-t 95% interval. Every episode is in "
+             "`scorecard.json`.", "", *HOW_ATTACKS_ASK, ""]
     for mode, r in card["modes"].items():
         worst = r["worst"]
         lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
                   # a name trained per mode is another policy in each mode: the file of this one, clean row included
                   *([f"The {policy} policy trained against {mode}: `{r['policy']}`.", ""] if "policy" in r else []),
-                  f"**Worst case: {ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
+                  *pipeline_lines(r),
+                  f"**Worst case: {SCORECARD_ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
                   f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
                   f"(clean {r['clean']['mean_return']:.1f}).", "",
                   "| attack | return at eps | drop at eps [95%] | expert loss | return at " +
@@ -248,7 +274,7 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
         for attack, sweep in r["attacks"].items():
             at = sweep[1.0]
             drop = paired_drop(r["clean"], at)
-            lines.append(f"| {ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
+            lines.append(f"| {SCORECARD_ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
                          f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
                          + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in card["scales"]) + " |")
         lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]

@@ -1,0 +1,165 @@
+"""The black-box pipeline: the attacks a scorecard runs on a policy it may only ask for actions.
+
+For one attacked mode, in four named steps (each a file in the scorecard's folder, reused by a rerun):
+
+1. **copy** the policy: a surrogate fitted to its answers (:mod:`aril_ros.surrogate`), ``surrogate-<mode>.pt``;
+   FGSM^k on it is the ``transfer`` attack;
+2. **screen the zoo**: every bundled ARIL-A of the env and mode (trained against DAgger, BC, DART, DR, GAIL and
+   ARIL learners, three seeds each), *except any trained against this very policy* (leave-one-out, by the SHA-256
+   of the policy file it was trained against), run against the surrogate on :data:`aril_ros.seeds.SCREENING`
+   episodes; the one that takes the most return is the ``zoo`` attack;
+3. **train** ARIL-A against the surrogate, on the engine at its speed, from the zoo's best (a warm start):
+   ``adversary-<mode>.pt``, the ``aril_a`` attack;
+4. **search** at run time: that adversary proposes, the policy is asked on :data:`SEARCH` candidates a step and
+   the most damaging is applied (``aril_a_search``).
+
+The policy is asked for actions only: in step 1 (the surrogate's questions), by the adversaries that take its
+action as an input (one question a step) and by the search; never for its weights. For an external node every
+question is a message to the node and back.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import plugins, seeds
+from .adversary import ready_adversary
+from .adversary_net import load_adversary
+from .attacks import LearnedAttack
+from .envs import layout_of
+from .policy import load_policy, policy_file, resolve_policy
+from .protocol import ros_domain
+from .registry import DATA_DIR, bundled_file
+from .rollout import RolloutEngine
+from .surrogate import SurrogateConfig, fit_surrogate
+
+SEARCH = 8
+"""Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
+DAgger sensory 8 took 49% of the return where none took 39% (results/tuning-record.md, issue 38)."""
+SCREEN_EPISODES = 3
+"""Episodes per zoo member in the screening (against the surrogate, so they cost no question to the policy)."""
+ZOO_FOLDERS = (DATA_DIR / "adversary", DATA_DIR / "defense-adversary")
+
+
+@dataclass(frozen=True)
+class BlackBoxAttacks:
+    """What the pipeline made for one mode: the surrogate (transfer), the zoo's best and the trained adversary."""
+
+    surrogate: Path
+    zoo: Path
+    adversary: Path
+    screened: list[tuple[float, str]]
+    """every zoo member's mean return against the surrogate, best first"""
+
+
+def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
+                      domain: str = "", log=print) -> BlackBoxAttacks:
+    """The four steps for the policy ``victim_name`` (a file, a bundled name, or ``ros``: an external node in
+    ``domain``) in ``mode`` at ``eps``; ARIL-A trained ``steps`` steps."""
+    surrogate = copy_policy(victim_name, env_id, mode, eps, folder / f"surrogate-{mode}.pt", domain, log)
+    screened = screen_zoo(zoo_members(env_id, mode, victim_digest(victim_name, env_id, mode)), surrogate, env_id,
+                          mode, eps, expert)
+    best = Path(screened[0][1])
+    log(f"[verdict] {mode}: the zoo's strongest against the surrogate is {relative(best)} "
+        f"({len(screened)} screened, mean return {screened[0][0]:.1f})")
+    adversary = train_on_surrogate(folder / f"adversary-{mode}.pt", surrogate, best, env_id, mode, eps, expert,
+                                   steps, log)
+    return BlackBoxAttacks(surrogate, best, adversary, screened)
+
+
+def train_on_surrogate(path: Path, surrogate: Path, warm_start: Path, env_id: str, mode: str, eps: float, expert: str,
+                       steps: int, log) -> Path:
+    """Step 3: ARIL-A at ``path``, trained ``steps`` steps against the surrogate from ``warm_start`` (when it was
+    trained at ``eps``; else from fresh weights); the one there when it was trained against this surrogate file
+    (its digest), at ``eps``, for at least ``steps``."""
+    short = path.exists() and load_adversary(path).meta.get("provenance", {}).get("steps", 0) < steps
+    init = str(warm_start) if load_adversary(warm_start).eps == eps else ""
+    return ready_adversary(path, relative(surrogate), env_id, mode, eps, expert, steps, short, log, init=init)
+
+
+def copy_policy(victim_name: str, env_id: str, mode: str, eps: float, path: Path, domain: str, log) -> Path:
+    """Step 1: the surrogate at ``path``; the one there when it copies the same policy at the same eps."""
+    if path.exists():
+        made = load_policy(path, env_id).meta.provenance
+        if (made.get("victim"), made.get("mode"), made.get("eps")) == (victim_name, mode, eps):
+            log(f"[verdict] {mode}: reusing {path}")
+            return path
+    if victim_name == "ros":
+        with ros_domain(domain):
+            victim = plugins.load("aril_ros.victims", "ros")(env_id)
+            try:
+                return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log)
+            finally:
+                victim.close()
+    victim = Answers(resolve_policy(victim_name, env_id, mode))
+    return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log)
+
+
+class Answers:
+    """A policy as a black box: its actions, nothing else (what the pipeline may see of a file)."""
+
+    def __init__(self, policy):
+        self._act = policy.act
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self._act(obs)
+
+
+def victim_digest(victim_name: str, env_id: str, mode: str) -> str | None:
+    """The SHA-256 of the policy file behind ``victim_name`` (None for an external node: no file to compare)."""
+    if victim_name == "ros":
+        return None
+    return hashlib.sha256(policy_file(victim_name, env_id, mode).read_bytes()).hexdigest()
+
+
+def zoo_members(env_id: str, mode: str, exclude_sha256: str | None) -> list[Path]:
+    """The bundled adversaries of ``env_id`` and ``mode`` but any trained against the policy file of digest
+    ``exclude_sha256`` (leave-one-out)."""
+    members = []
+    for folder in ZOO_FOLDERS:
+        for path in sorted(folder.glob(f"{env_id}-{mode}*.pt")):
+            if exclude_sha256 is None or trained_against(path, env_id, mode) != exclude_sha256:
+                members.append(path)
+    return members
+
+
+def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
+    """The SHA-256 of the policy file ``adversary`` was trained against: its provenance's, or for files made before
+    it recorded one, the digest of the bundled file its victim names."""
+    made = load_adversary(adversary).meta.get("provenance", {})
+    if made.get("victim_sha256"):
+        return made["victim_sha256"]
+    try:
+        return hashlib.sha256(bundled_file(made.get("victim", ""), env_id, mode).read_bytes()).hexdigest()
+    except (ValueError, OSError):
+        return None
+
+
+def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
+               expert: str) -> list[tuple[float, str]]:
+    """Step 2: each member's mean return against the surrogate (scaled to ``eps``), lowest first."""
+    if not members:
+        raise ValueError(f"no bundled adversary of {env_id} {mode} is left for the zoo once those trained against "
+                         "this policy are set aside")
+    policy, expert_policy = load_policy(surrogate, env_id), resolve_policy(expert, env_id)
+    scores = []
+    for member in members:
+        attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
+                               victim=policy, expert=expert_policy)
+        engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, SCREEN_EPISODES)
+        returns = np.zeros(SCREEN_EPISODES)
+        for step in engine.iter_steps(SCREEN_EPISODES, seeds.SCREENING):
+            returns[step.episodes] += step.reward
+        engine.close()
+        scores.append((round(float(returns.mean()), 3), relative(member)))
+    return sorted(scores)
+
+
+def relative(path: Path) -> str:
+    """``path`` relative to here when it lies below (what files and pages record), else as it is."""
+    path = Path(path).resolve()
+    return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
