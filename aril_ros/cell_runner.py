@@ -7,8 +7,8 @@ lines give the ETA); every episode's figures come back.
 
 On the engine a cell is a task of one CPU; through the graph a task of :data:`GRAPH_RUN_CPUS`, its run in a ROS
 domain of its own on the task's node, or in the domain given (an external node's, whose cells run one after the
-other in this process). A graph cell's log is ``<logs>/<mode>-<attack>-<eps>.mcap`` when ``logs`` is given, else a
-scratch file.
+other in this process). A graph cell's log is ``<logs>/<mode>-<attack>[-<its file's stem>][-search<K>]-<eps>.mcap``
+when ``logs`` is given, else a scratch file.
 """
 from __future__ import annotations
 
@@ -55,16 +55,29 @@ class CellRunner:
         for index, episodes in tasks:
             cell = cells[index]
             results[index] = figures(cell, episodes)
-            log(f"[scorecard] {cell.mode} {ATTACKS[cell.attack]} eps {cell.eps:g}: return "
+            log(f"[scorecard] {cell.mode} {described(cell)} eps {cell.eps:g}: return "
                 f"{results[index]['mean_return']:.1f}", flush=True)
         return results
 
     def graph_spec(self, cell: EvalConfig) -> dict:
         """``cell``'s graph run (:class:`RoundSpec`'s fields), its files marked to travel with its task; its log a
         file the task makes when logs are kept, else none (the task reads it back on its node)."""
-        log_file = self.logs / f"{cell.mode}-{cell.attack}-{cell.eps:g}.mcap" if self.logs else None
+        log_file = self.logs / f"{cell.mode}-{named(cell)}-{cell.eps:g}.mcap" if self.logs else None
         run = {k: v for k, v in dataclasses.asdict(cell).items() if k in GRAPH_RUN_FIELDS}
         return shipped_job({**run, "domain": self.domain, "record": Produced(log_file) if log_file else None})
+
+
+def described(cell: EvalConfig) -> str:
+    """A cell's attack as its progress line names it: with its file and its search, which tell cells of one attack
+    apart (a scorecard runs aril_a with three adversaries or searches)."""
+    return (ATTACKS[cell.attack] + (f" ({Path(cell.attack_file).stem})" if cell.attack_file else "")
+            + (f" + search {cell.search}" if cell.search else ""))
+
+
+def named(cell: EvalConfig) -> str:
+    """A cell's attack in its log's file name: its name, its file's stem and its search."""
+    return (cell.attack + (f"-{Path(cell.attack_file).stem}" if cell.attack_file else "")
+            + (f"-search{cell.search}" if cell.search else ""))
 
 
 def figures(cell: EvalConfig, episodes: list[EpisodeStats]) -> dict:

@@ -50,6 +50,8 @@ class RoundSpec:
     """iterations of fgsm_k and spsa (0: the attack's default)"""
     samples: int = 0
     """spsa's directions per iteration (0: its default)"""
+    search: int = 0
+    """aril_a's query-time search: candidates a step the policy is asked about (0: none)"""
 
 
 @dataclass

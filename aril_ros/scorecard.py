@@ -2,22 +2,25 @@
 
     aril scorecard policy:=runs/my-policy.pt env:=HalfCheetah-v5 modes:=sensory,physical budget:=quick
 
-For each attacked mode: the clean return and every attack's return on the same env
-seeds (paired: episode ``i`` resets with seed ``seed + i`` in every cell), the drop from clean with a paired
-Student-t 95% interval, an eps sweep (0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the
-expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, SPSA^k
-(zeroth order: it queries the policy's actions) and ARIL-A trained against *this* policy within the budget;
-and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
-calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is
-another file in each mode, each with a clean cell of its own (a drop compares the same policy clean and attacked).
+For each attacked mode: the clean return and every attack's return on the same env seeds (paired: episode ``i``
+resets with seed ``seed + i`` in every cell), the drop from clean with a paired Student-t 95% interval, an eps sweep
+(the full budget: 0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the expert disagreement
+``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the policy for actions:
+SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
+answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
+against the surrogate from it, alone and with query-time search; and, when the policy is a file whose gradients can
+be taken, the white-box FGSM and FGSM^k. The worst of them is the verdict (AutoAttack's rule: no knob a user could
+set to a soft verdict). eps is the calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name
+trained per attack mode (dr, aril) is another file in each mode, each with a clean cell of its own (a drop compares
+the same policy clean and attacked).
 
 A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
-``workers`` CPUs of a local Ray, or a cluster at ``address``), after its ARIL-A trainings; with ``via:=graph`` each
+``workers`` CPUs of a local Ray, or a cluster at ``address``), after its black-box pipeline; with ``via:=graph`` each
 cell is instead a run of the ROS 2 graph with a policy node serving the file (the verdict through the nodes a robot
 runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`~aril_ros.cell_runner.GRAPH_RUN_CPUS` CPUs
 on its node, in a ROS domain of its own there, its log coming back with ``keep_logs:=true``. ``policy:=external``
 scores a ROS 2 policy node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
-your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
+your node in the loop, and the surrogate is fitted to its answers through the same topics (never its weights).
 Start the node in a domain of your choosing and name it::
 
     ROS_DOMAIN_ID=42 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python my_policy.py --ros-args -p act_dim:=6 &
@@ -31,10 +34,13 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
     scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|;
                              for a name trained per mode, the file scored in each mode
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
-    adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps;
-                             for an external node: another node needs another out:= folder)
-    logs/<mode>-<attack>-<eps>.mcap   through the graph (policy:=external, via:=graph) with keep_logs:=true: each
-                                      graph run's log
+    surrogate-<mode>.pt      the black-box pipeline's copy of the policy (aril_ros.verdict); a rerun reuses it (same
+                             policy, eps; for an external node: another node needs another out:= folder)
+    adversary-<mode>.pt      the ARIL-A trained against the surrogate from the zoo's strongest; a rerun reuses it
+                             (same surrogate, eps, at least the budget's steps)
+    logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
+                             through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
+                             log
 
 A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
 evaluations at most.

@@ -1,0 +1,127 @@
+"""How much of the strongest known damage the scorecard's black-box verdict finds, and in how many minutes.
+
+    python -m aril_ros.benchmarks.verdict envs:=HalfCheetah-v5,Ant-v5 policies:=dagger,bc,dr,aril budgets:=quick,full
+
+For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
+box at each budget (its black-box rows only: random, SPSA^k, transfer, zoo, ARIL-A, ARIL-A + search; the zoo leaves
+out every adversary trained against this very file), on the scorecard's episodes at eps (scale 1). The reference is
+the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
+2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
+reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
+and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
+resumes from the cells already scored (a cell's figures are in its ``cell.json``, its progress with the seconds in
+its ``scorecard.log``).
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .. import seeds
+from ..args import arg, comma_list, module_config
+from ..evaluation import EvalConfig, evaluate
+from ..registry import ATTACKED_MODES, adversary_path
+from ..report.stats import paired_drop
+from ..scorecard import BUDGETS, ScorecardConfig, scorecard
+
+BLACK_BOX_ROWS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search")
+
+
+@dataclass
+class VerdictBenchConfig:
+    """Arguments of ``python -m aril_ros.benchmarks.verdict``."""
+
+    envs: str = arg("HalfCheetah-v5,Ant-v5", "comma-separated env ids")
+    policies: str = arg("dagger,bc,dr,aril", "comma-separated bundled learners (each has bundled ARIL-As against it)")
+    modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes")
+    budgets: str = arg("quick,full", f"comma-separated scorecard budgets ({', '.join(BUDGETS)})")
+    episodes: int = arg(20, "episodes per cell (paired: the same env seeds in every row)", low=2, high=100_000)
+    workers: int = arg(2, "CPUs of the local Ray each scorecard's cells run on", low=1, high=1024)
+    out: str = arg("runs/verdict", "the folder of the cells and the table")
+
+
+def reference(env: str, policy: str, mode: str, episodes: int, card: dict) -> dict:
+    """The reference of a cell: the stronger of white-box FGSM^k (from the scorecard's cells) and the bundled ARIL-A
+    trained against this learner, each with its paired drop from the scorecard's clean cell."""
+    result = card["modes"][mode]
+    adversary = adversary_path(env, mode, policy)
+    learned = evaluate(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
+                                  episodes=episodes, seed=seeds.SCORECARD))
+    learned_cell = {"episodes": [{"return": r} for r in learned["returns"]]}
+    drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]),
+             "bundled_aril_a": paired_drop(result["clean"], learned_cell)}
+    strongest = min(drops, key=lambda name: drops[name]["drop_pct"])  # a drop is negative: the lowest is strongest
+    return {"attack": strongest, "file": str(adversary), "drops": drops, "drop_pct": drops[strongest]["drop_pct"]}
+
+
+def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict:
+    """One scorecard of ``policy`` in ``mode`` at ``budget`` (its figures, worst black-box drop and minutes)."""
+    folder = Path(cfg.out) / "cells" / f"{env}-{policy}-{mode}-{budget}"
+    done = folder / "cell.json"
+    if done.exists():
+        return json.loads(done.read_text())
+    started = time.time()
+    attacks = ",".join((*BLACK_BOX_ROWS, "fgsm_k"))
+    folder.mkdir(parents=True, exist_ok=True)
+    with (folder / "scorecard.log").open("w") as log_file:
+        def log(*parts, **_):  # every line with the seconds since the cell began: where its minutes went
+            print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
+
+        scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget, episodes=cfg.episodes,
+                                  scales="1", attacks=attacks, workers=cfg.workers, out=str(folder)), log=log)
+    minutes = (time.time() - started) / 60
+    card = json.loads((folder / "scorecard.json").read_text())
+    result = card["modes"][mode]
+    drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
+    worst = min(drops, key=lambda row: drops[row]["drop_pct"])
+    figures = {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
+               "clean": result["clean"]["mean_return"], "drops": drops, "black_box_worst": worst,
+               "black_box_drop_pct": drops[worst]["drop_pct"],
+               "reference": reference(env, policy, mode, cfg.episodes, card)}
+    done.write_text(json.dumps(figures, indent=1) + "\n")
+    return figures
+
+
+def table(rows: list[dict], budgets: list[str]) -> str:
+    """The benchmark's table: per cell the black-box drop and ratio per budget, the reference and the minutes."""
+    head = "| env | policy | mode | clean | " + " | ".join(
+        f"{b} black-box drop | {b} ratio | {b} min" for b in budgets) + " | reference drop |"
+    lines = [head, "|" + "---|" * (5 + 3 * len(budgets))]
+    for cell in rows:
+        first = cell[budgets[0]]
+        ref = first["reference"]
+        parts = [f"{c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}) | "
+                 f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f} | {c['minutes']:.1f}" for c in
+                 (cell[b] for b in budgets)]
+        lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
+                     + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}) |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    cfg = module_config(VerdictBenchConfig, "python -m aril_ros.benchmarks.verdict", __doc__, argv)
+    if cfg is None:
+        return
+    budgets = comma_list(cfg.budgets)
+    rows = []
+    for env in comma_list(cfg.envs):
+        for policy in comma_list(cfg.policies):
+            for mode in comma_list(cfg.modes):
+                cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
+                rows.append(cell)
+                ref = cell[budgets[0]]["reference"]
+                print(f"{env} {policy} {mode}: reference {ref['drop_pct']:+.1f}% ({ref['attack']}); " + "; ".join(
+                    f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}, ratio "
+                    f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f}, {c['minutes']:.1f} min)"
+                    for b, c in cell.items()), flush=True)
+    out = Path(cfg.out)
+    (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1) + "\n")
+    (out / "verdict.md").write_text(table(rows, budgets))
+    print(table(rows, budgets))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
