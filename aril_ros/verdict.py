@@ -33,7 +33,7 @@ from .attacks import LearnedAttack
 from .envs import HORIZON, layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .protocol import ros_domain
-from .registry import DATA_DIR, bundled_file
+from .registry import DATA_DIR, DEFENSES, bundled_file
 from .rollout import RolloutEngine
 from .surrogate import SurrogateConfig, fit_surrogate
 
@@ -133,14 +133,19 @@ def zoo_members(env_id: str, mode: str, exclude_sha256: str | None) -> list[Path
 
 def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
     """The SHA-256 of the policy file ``adversary`` was trained against: its provenance's, or for files made before
-    it recorded one, the digest of the bundled file its victim names."""
+    it recorded one, the digest of the bundled learner whose provenance it recorded (their victim is named by a path
+    that was the learner's before it was bundled, and is gone: its provenance is what stayed with both)."""
     made = load_adversary(adversary).meta.get("provenance", {})
     if made.get("victim_sha256"):
         return made["victim_sha256"]
-    try:
-        return hashlib.sha256(bundled_file(made.get("victim", ""), env_id, mode).read_bytes()).hexdigest()
-    except (ValueError, OSError):
-        return None
+    for name in DEFENSES:
+        try:
+            learner = bundled_file(name, env_id, mode)
+        except ValueError:  # no such learner for this env
+            continue
+        if load_policy(learner, env_id).meta.provenance == made.get("victim_provenance"):
+            return hashlib.sha256(learner.read_bytes()).hexdigest()
+    return None
 
 
 def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
