@@ -270,7 +270,7 @@ def pipeline_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, ou
     log(f"[scorecard] {mode}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
         f"{budget.adversary_steps:,} steps against the surrogate (eps {eps:g})")
     return black_box_attacks(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps, cfg.expert,
-                             budget.adversary_steps, out, cfg.domain, log)
+                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon)
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:

@@ -26,7 +26,7 @@ import torch
 
 from . import seeds
 from .args import arg
-from .envs import layout_of
+from .envs import HORIZON, layout_of
 from .policy import MLPPolicy, meta_for_env, save_policy
 from .provenance import stamp
 from .rollout import SimBatch
@@ -50,14 +50,16 @@ class SurrogateConfig:
 
 
 def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, cfg: SurrogateConfig = SurrogateConfig(),
-                  victim_name: str = "", log=print) -> Path:
-    """The surrogate of ``victim`` (anything with ``act(obs_batch)``) in ``mode`` at ``eps``, written to ``out``."""
+                  victim_name: str = "", log=print, horizon: int = HORIZON) -> Path:
+    """The surrogate of ``victim`` (anything with ``act(obs_batch)``) in ``mode`` at ``eps``, from episodes of
+    ``horizon`` steps, written to ``out``."""
     started = time.time()
     layout = layout_of(env_id)
     rng = np.random.default_rng(cfg.seed)
-    visited = visit(victim, env_id, mode, eps, cfg.episodes)
-    questions = np.concatenate([visited, probe_points(visited, layout, eps, cfg.probes, rng)])
-    answers = ask(victim, questions)
+    visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon)
+    probes = probe_points(visited, layout, eps, cfg.probes, rng)
+    questions = np.concatenate([visited, probes])
+    answers = np.concatenate([driven, ask(victim, probes)])
     held_out = rng.permutation(len(questions))[: len(questions) // 10]
     train = np.setdiff1d(np.arange(len(questions)), held_out)
     torch.manual_seed(cfg.seed)  # the initial weights
@@ -67,7 +69,8 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
     fit(surrogate, questions[train], answers[train], cfg)
     fidelity = judge(surrogate, questions[held_out], answers[held_out])
     surrogate.meta.provenance = {**stamp("aril fit-surrogate", cfg), "algorithm": "surrogate", "victim": victim_name,
-                                 "mode": mode, "eps": eps, "queries": int(len(questions)), "fidelity": fidelity,
+                                 "mode": mode, "eps": eps, "horizon": horizon, "queries": int(len(questions)),
+                                 "fidelity": fidelity,
                                  "seconds": round(time.time() - started, 1)}
     path = save_policy(surrogate, out)
     log(f"[surrogate] {path}: {len(questions):,} questions to the victim, held-out error {fidelity['mse']:.4f} "
@@ -75,15 +78,17 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
     return path
 
 
-def visit(victim, env_id: str, mode: str, eps: float, episodes: int) -> np.ndarray:
-    """What the victim saw, step by step, driving ``episodes`` episodes; the odd ones under uniform ±eps noise (in
-    ``mode``: seen, or written into the simulator's state)."""
+def visit(victim, env_id: str, mode: str, eps: float, episodes: int,
+          horizon: int = HORIZON) -> tuple[np.ndarray, np.ndarray]:
+    """What the victim saw, step by step, driving ``episodes`` episodes of ``horizon`` steps, and what it answered
+    (its first questions: asked once, kept); the odd episodes under uniform ±eps noise (in ``mode``: seen, or written
+    into the simulator's state)."""
     layout = layout_of(env_id)
-    sims = SimBatch(env_id, episodes)
+    sims = SimBatch(env_id, episodes, horizon)
     first = seeds.SURROGATE
     rngs = [episode_rng(first, e) for e in range(episodes)]
     obs = sims.reset([episode_seed(first, e) for e in range(episodes)])
-    running, seen_rows = np.arange(episodes), []
+    running, seen_rows, answer_rows = np.arange(episodes), [], []
     try:
         while running.size:
             delta = np.zeros_like(obs[running])
@@ -92,11 +97,12 @@ def visit(victim, env_id: str, mode: str, eps: float, episodes: int) -> np.ndarr
                     delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
             seen = sims.seen(mode, obs[running], delta, running)
             seen_rows.append(seen)
-            obs[running], _, terminated, truncated = sims.step(victim.act(seen), running)
+            answer_rows.append(victim.act(seen))
+            obs[running], _, terminated, truncated = sims.step(answer_rows[-1], running)
             running = running[~(terminated | truncated)]
     finally:
         sims.close()
-    return np.concatenate(seen_rows)
+    return np.concatenate(seen_rows), np.concatenate(answer_rows)
 
 
 def probe_points(obs: np.ndarray, layout, eps: float, probes: int, rng: np.random.Generator) -> np.ndarray:

@@ -30,10 +30,10 @@ from . import plugins, seeds
 from .adversary import ready_adversary
 from .adversary_net import load_adversary
 from .attacks import LearnedAttack
-from .envs import layout_of
+from .envs import HORIZON, layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .protocol import ros_domain
-from .registry import DATA_DIR, bundled_file
+from .registry import DATA_DIR, DEFENSES, bundled_file
 from .rollout import RolloutEngine
 from .surrogate import SurrogateConfig, fit_surrogate
 
@@ -57,12 +57,13 @@ class BlackBoxAttacks:
 
 
 def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-                      domain: str = "", log=print) -> BlackBoxAttacks:
+                      domain: str = "", log=print, horizon: int = HORIZON) -> BlackBoxAttacks:
     """The four steps for the policy ``victim_name`` (a file, a bundled name, or ``ros``: an external node in
-    ``domain``) in ``mode`` at ``eps``; ARIL-A trained ``steps`` steps."""
-    surrogate = copy_policy(victim_name, env_id, mode, eps, folder / f"surrogate-{mode}.pt", domain, log)
+    ``domain``) in ``mode`` at ``eps``, on episodes of ``horizon`` steps (the scored ones'); ARIL-A trained ``steps``
+    steps."""
+    surrogate = copy_policy(victim_name, env_id, mode, eps, folder / f"surrogate-{mode}.pt", domain, log, horizon)
     screened = screen_zoo(zoo_members(env_id, mode, victim_digest(victim_name, env_id, mode)), surrogate, env_id,
-                          mode, eps, expert)
+                          mode, eps, expert, horizon)
     best = Path(screened[0][1])
     log(f"[verdict] {mode}: the zoo's strongest against the surrogate is {relative(best)} "
         f"({len(screened)} screened, mean return {screened[0][0]:.1f})")
@@ -81,22 +82,25 @@ def train_on_surrogate(path: Path, surrogate: Path, warm_start: Path, env_id: st
     return ready_adversary(path, relative(surrogate), env_id, mode, eps, expert, steps, short, log, init=init)
 
 
-def copy_policy(victim_name: str, env_id: str, mode: str, eps: float, path: Path, domain: str, log) -> Path:
-    """Step 1: the surrogate at ``path``; the one there when it copies the same policy at the same eps."""
+def copy_policy(victim_name: str, env_id: str, mode: str, eps: float, path: Path, domain: str, log,
+                horizon: int = HORIZON) -> Path:
+    """Step 1: the surrogate at ``path``; the one there when it copies the same policy at the same eps and
+    horizon."""
     if path.exists():
         made = load_policy(path, env_id).meta.provenance
-        if (made.get("victim"), made.get("mode"), made.get("eps")) == (victim_name, mode, eps):
+        if ((made.get("victim"), made.get("mode"), made.get("eps"), made.get("horizon", HORIZON))
+                == (victim_name, mode, eps, horizon)):
             log(f"[verdict] {mode}: reusing {path}")
             return path
     if victim_name == "ros":
         with ros_domain(domain):
             victim = plugins.load("aril_ros.victims", "ros")(env_id)
             try:
-                return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log)
+                return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log, horizon)
             finally:
                 victim.close()
     victim = Answers(resolve_policy(victim_name, env_id, mode))
-    return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log)
+    return fit_surrogate(victim, env_id, mode, eps, path, SurrogateConfig(), victim_name, log, horizon)
 
 
 class Answers:
@@ -129,19 +133,25 @@ def zoo_members(env_id: str, mode: str, exclude_sha256: str | None) -> list[Path
 
 def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
     """The SHA-256 of the policy file ``adversary`` was trained against: its provenance's, or for files made before
-    it recorded one, the digest of the bundled file its victim names."""
+    it recorded one, the digest of the bundled learner whose provenance it recorded (their victim is named by a path
+    that was the learner's before it was bundled, and is gone: its provenance is what stayed with both)."""
     made = load_adversary(adversary).meta.get("provenance", {})
     if made.get("victim_sha256"):
         return made["victim_sha256"]
-    try:
-        return hashlib.sha256(bundled_file(made.get("victim", ""), env_id, mode).read_bytes()).hexdigest()
-    except (ValueError, OSError):
-        return None
+    for name in DEFENSES:
+        try:
+            learner = bundled_file(name, env_id, mode)
+        except ValueError:  # no such learner for this env
+            continue
+        if load_policy(learner, env_id).meta.provenance == made.get("victim_provenance"):
+            return hashlib.sha256(learner.read_bytes()).hexdigest()
+    return None
 
 
 def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
-               expert: str) -> list[tuple[float, str]]:
-    """Step 2: each member's mean return against the surrogate (scaled to ``eps``), lowest first."""
+               expert: str, horizon: int = HORIZON) -> list[tuple[float, str]]:
+    """Step 2: each member's mean return against the surrogate (scaled to ``eps``) over episodes of ``horizon``
+    steps, lowest first."""
     if not members:
         raise ValueError(f"no bundled adversary of {env_id} {mode} is left for the zoo once those trained against "
                          "this policy are set aside")
@@ -150,7 +160,7 @@ def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
                                victim=policy, expert=expert_policy)
-        engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, SCREEN_EPISODES)
+        engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, SCREEN_EPISODES, horizon)
         returns = np.zeros(SCREEN_EPISODES)
         for step in engine.iter_steps(SCREEN_EPISODES, seeds.SCREENING):
             returns[step.episodes] += step.reward

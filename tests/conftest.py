@@ -94,13 +94,18 @@ def policy_files(tmp_path, env_id):
 
 
 class AnswersOnly:
-    """A black box: it answers ``act`` and refuses every other access (weights, gradients)."""
+    """A black box: it answers ``act``, counting the rows it was asked (``asked``), and refuses every other access
+    (weights, gradients); the policy lives in a closure, where no attribute lookup reaches it."""
 
     def __init__(self, policy):
-        object.__setattr__(self, "_policy", policy)
+        answer = policy.act
+        self.asked = 0
 
-    def act(self, obs):
-        return self._policy.act(obs)
+        def act(obs):
+            self.asked += len(obs)
+            return answer(obs)
+
+        self.act = act
 
     def __getattr__(self, name):
         raise AssertionError(f"a black-box attack reached for the victim's {name!r}")

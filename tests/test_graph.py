@@ -15,11 +15,11 @@ import pytest
 
 from aril_ros.attacks import make_attack
 from aril_ros.envs import MujocoSim, layout_of
-from aril_ros.policy import load_policy
+from aril_ros.policy import load_policy, save_policy
 from aril_ros.rollout import RolloutEngine
 from aril_ros.runlog import RunLogError, read_run, recover
-from tests.conftest import (ROOT, assert_same_steps, free_domain, policy_files, processes_in_domain, ros_env, run_graph,
-                            run_with_external, simulator_and_prober, summary_of)
+from tests.conftest import (ROOT, assert_same_steps, free_domain, policy_files, processes_in_domain, random_policy,
+                            ros_env, run_graph, run_with_external, simulator_and_prober, summary_of)
 
 
 @pytest.mark.slow
@@ -27,7 +27,8 @@ from tests.conftest import (ROOT, assert_same_steps, free_domain, policy_files, 
                                                   ("sensory", "HalfCheetah-v5", "random"),
                                                   ("physical", "Ant-v5", "random"),
                                                   ("physical", "HalfCheetah-v5", "fgsm_k"),
-                                                  ("sensory", "Swimmer-v5", "aril_a")])
+                                                  ("sensory", "Swimmer-v5", "aril_a"),
+                                                  ("sensory", "HalfCheetah-v5", "transfer")])
 def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp_path):
     from aril_ros.adversary import AdversaryConfig, train_adversary
 
@@ -37,6 +38,8 @@ def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp
         adversary = train_adversary(AdversaryConfig(env=env_id, mode=mode, eps=0.1, victim=str(policy),
                                                     expert=str(expert), steps=0, out=str(tmp_path / "adversary.pt")),
                                     log=lambda *a, **k: None)
+    if attack == "transfer":  # a surrogate is a policy file: any stands in for one fitted to the policy's answers
+        adversary = save_policy(random_policy(env_id, seed=3), tmp_path / "surrogate.pt")
     log = tmp_path / "run.mcap"
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
                                    f"attack:={attack}", "eps:=0.1", "k:=3", "episodes:=2", "horizon:=80", "seed:=4",
@@ -44,7 +47,8 @@ def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp
     victim = load_policy(policy)
     engine = RolloutEngine(env_id, victim, load_policy(expert),
                            make_attack(attack, layout_of(env_id), 0.1 if attack != "none" else 0, victim=victim,
-                                       expert=load_policy(expert), steps=3 if attack == "fgsm_k" else None,
+                                       expert=load_policy(expert),
+                                       steps=3 if attack in ("fgsm_k", "transfer") else None,
                                        adversary=adversary and str(adversary), mode=mode), mode,
                            n_envs=2, horizon=80)
     traj = engine.rollout(2, seed=4)

@@ -41,6 +41,11 @@ DOMAIN_RANGE = "is not an allowed ROS domain id: auto, 0-101 or 215-232"
     ({"attack_file": "adversary.pt"}, "attack_file:=adversary.pt is used by attack:=aril_a and attack:=transfer only"),
     ({"attack": "spsa", "rescale": True}, "rescale:=True is used by attack:=aril_a only, got attack:=spsa"),
     ({"samples": 4}, "samples:=4 is used by attack:=spsa only, got attack:=aril_a"),  # the default against DAgger
+    ({"attack": "transfer"}, "attack:=transfer runs FGSM^k on a surrogate of the policy: pass its file as "
+                             "attack_file:="),
+    ({"attack": "transfer", "attack_file": "missing.pt"}, "missing.pt: no such policy file"),
+    ({"attack": "transfer", "attack_file": "aril_ros/data/adversary/Swimmer-v5-sensory.pt"},
+     "aril_ros/data/adversary/Swimmer-v5-sensory.pt: not an aril_ros policy file"),  # an adversary is no surrogate
     ({"mode": "sensory", "attack": "aril_a", "eps": 0.5}, "aril_ros/data/adversary/Swimmer-v5-sensory.pt was trained "
                                                            "with eps=0.3, not eps=0.5 (rescale:=true scales it)"),
 ])
@@ -62,6 +67,13 @@ def test_run_graph_refuses_a_bad_argument_with_a_message_and_starts_nothing():
     here = run_graph("episodes:=0", domain=domain)  # the suite's in-process runs give what the script gives
     assert (here.returncode, here.stdout, here.stderr) == (out.returncode, out.stdout, out.stderr)
     assert [signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)] == handlers
+
+
+def test_transfer_without_its_surrogate_file_is_one_line_and_starts_nothing():
+    out = run_graph("attack:=transfer")
+    assert out.returncode == 1
+    assert out.stderr.strip() == ("run_graph: error: attack:=transfer runs FGSM^k on a surrogate of the policy: pass "
+                                  "its file as attack_file:= (aril fit-surrogate)")
 
 
 def test_a_reader_that_leaves_before_the_help_is_written_gets_no_traceback():

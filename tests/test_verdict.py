@@ -1,0 +1,183 @@
+"""The black-box pipeline (aril_ros.verdict, aril_ros.surrogate): it asks the scored policy for actions alone and
+counts every question, its surrogate holds none of the policy's parameters, transfer never asks the policy, the zoo
+leaves out every adversary trained against the policy, and a rerun reuses what it made. Short Swimmer episodes."""
+from __future__ import annotations
+
+import hashlib
+import shutil
+
+import numpy as np
+import pytest
+
+from aril_ros import verdict
+from aril_ros.adversary import load_adversary
+from aril_ros.attacks import make_attack
+from aril_ros.envs import layout_of
+from aril_ros.policy import load_policy, policy_file, resolve_policy
+from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS
+from aril_ros.rollout import RolloutEngine
+from aril_ros.surrogate import SurrogateConfig, fit_surrogate
+from aril_ros.verdict import SEARCH, black_box_attacks, victim_digest, zoo_members
+from tests.conftest import AnswersOnly
+
+ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
+HORIZON = 50
+STEPS = 4096
+"""ARIL-A's training against the surrogate: one PPO update."""
+
+
+def quiet(*args, **kwargs):
+    pass
+
+
+def run_pipeline(folder, eps: float = EPS):
+    """black_box_attacks on the bundled DAgger, the policy seen through :class:`AnswersOnly` (its act alone, its
+    questions counted): what it made, and the black boxes it asked."""
+    boxes = []
+
+    def answers_only(policy):
+        boxes.append(AnswersOnly(policy))
+        return boxes[-1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(verdict, "Answers", answers_only)
+        made = black_box_attacks("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON)
+    return made, boxes
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pipeline")
+    made, boxes = run_pipeline(folder)
+    return folder, made, boxes
+
+
+def sha256(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.mark.slow
+def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_question(pipeline):
+    folder, made, boxes = pipeline
+    [box] = boxes  # one black box, the surrogate's: the zoo and ARIL-A's training ask the surrogate
+    surrogate = load_policy(made.surrogate).meta.provenance
+    assert box.asked == surrogate["queries"] > 0
+    assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
+                                                                                               HORIZON)
+    # ARIL-A was trained against the surrogate file, from the zoo's strongest (the one at the head of the screening)
+    trained = load_adversary(made.adversary).meta["provenance"]
+    assert trained["victim_sha256"] == sha256(made.surrogate) and trained["steps"] >= STEPS
+    assert str(made.zoo) == made.screened[0][1] and made.screened == sorted(made.screened)
+    assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("attack", ["transfer", "zoo", "aril_a", "aril_a_search"])
+def test_each_black_box_attack_runs_against_a_policy_that_only_answers(pipeline, attack):
+    """As the scorecard runs them (aril_ros.scorecard.cell): the attack's victim answers act and nothing else, and
+    every row it was asked is one the attack counted; transfer asks it nothing."""
+    _, made, _ = pipeline
+    policy, expert = resolve_policy("dagger", ENV), resolve_policy("expert", ENV)
+    victim = AnswersOnly(policy)
+    file = {"transfer": made.surrogate, "zoo": made.zoo}.get(attack, made.adversary)
+    chosen = make_attack("transfer" if attack == "transfer" else "aril_a", layout_of(ENV), EPS, victim=victim,
+                         expert=expert, adversary=str(file), mode=MODE, rescale=True,
+                         search=SEARCH if attack == "aril_a_search" else 0)
+    engine = RolloutEngine(ENV, policy, expert, chosen, MODE, n_envs=2, horizon=HORIZON)
+    traj = engine.rollout(2, seed=1)
+    engine.close()
+    steps = int(traj.length.sum())
+    assert np.abs(traj.delta).max() > 0 and np.abs(traj.delta).max() <= EPS
+    if attack == "transfer":
+        assert victim.asked == 0
+    else:  # the adversary takes the policy's action (1 row a step), the search asks about SEARCH + 1 candidates
+        assert victim.asked == chosen.queries == steps * (1 + (SEARCH + 1 if attack == "aril_a_search" else 0))
+
+
+@pytest.mark.slow
+def test_the_surrogate_is_fitted_to_answers_alone_and_records_its_fidelity(tmp_path):
+    """The policy behind answers only (its parameters out of reach), a surrogate of its own width: weights of its
+    own, every question counted, and a held-out R^2 that says it copies the policy."""
+    policy = resolve_policy("dagger", ENV)
+    box = AnswersOnly(policy)
+    path = fit_surrogate(box, ENV, MODE, EPS, tmp_path / "surrogate.pt",
+                         SurrogateConfig(episodes=4, epochs=100, hidden=policy.meta.hidden[0]), "dagger", log=quiet,
+                         horizon=100)
+    surrogate = load_policy(path, ENV)
+    made = surrogate.meta.provenance
+    assert made["algorithm"] == "surrogate" and made["queries"] == box.asked
+    assert made["fidelity"]["r2"] > 0.9 and made["fidelity"]["held_out"] == made["queries"] // 10
+    theirs, ours = policy.state_dict(), surrogate.state_dict()
+    weights = [name for name in theirs if name.endswith("weight")]
+    assert weights and all(theirs[name].shape == ours[name].shape for name in weights)
+    assert not any(np.allclose(theirs[name].numpy(), ours[name].numpy(), atol=1e-3) for name in weights)
+
+
+class Mute:
+    """A victim that must not be asked: any use of it fails the test."""
+
+    def __getattr__(self, name):
+        raise AssertionError(f"transfer reached for the victim's {name!r}")
+
+
+@pytest.mark.slow
+def test_transfer_is_fgsm_k_on_the_surrogate_and_never_asks_the_victim(pipeline):
+    _, made, _ = pipeline
+    layout, expert = layout_of(ENV), resolve_policy("expert", ENV)
+    engine = RolloutEngine(ENV, resolve_policy("dagger", ENV), expert, None, MODE, n_envs=2, horizon=HORIZON)
+    states = engine.rollout(2, seed=2).true_obs.reshape(-1, layout.obs_dim)
+    engine.close()
+    rngs = [None] * len(states)
+    delta = make_attack("transfer", layout, EPS, victim=Mute(), expert=expert, adversary=str(made.surrogate),
+                        steps=4).perturb(states, rngs)
+    assert np.abs(delta).max() == pytest.approx(EPS) and np.all(delta[:, ~layout.zero_order_mask] == 0)
+    on_the_surrogate = make_attack("fgsm_k", layout, EPS, victim=load_policy(made.surrogate, ENV), expert=expert,
+                                   steps=4).perturb(states, rngs)
+    np.testing.assert_array_equal(delta, on_the_surrogate)
+
+
+def members_against(env_id: str, mode: str, learner: str) -> set[str]:
+    """The bundled adversaries trained against the bundled ``learner`` (three seeds), by their file names."""
+    if learner == DEFAULT_POLICY:
+        folder, stem = DATA_DIR / "adversary", f"{env_id}-{mode}"
+    else:
+        folder, stem = DATA_DIR / "defense-adversary", f"{env_id}-{mode}-{learner}"
+    return {str(folder / f"{stem}{seed}.pt") for seed in ("", "-seed1", "-seed2")}
+
+
+@pytest.mark.parametrize("mode", ["sensory", "physical"])
+@pytest.mark.parametrize("env_id", PAPER_ENVS)
+@pytest.mark.parametrize("learner", list(DEFENSES))
+def test_the_zoo_leaves_out_every_adversary_trained_against_the_scored_policy(learner, env_id, mode, tmp_path):
+    """Leave-one-out, by the scored file's digest: the bundled adversaries trained against that learner (each of
+    its three seeds, the older files by the provenance they recorded of it) are set aside, every other kept; a copy
+    of the file elsewhere is the same policy; an external node (no file) keeps them all."""
+    every = {str(p) for p in zoo_members(env_id, mode, None)}
+    assert every == {str(p) for folder in verdict.ZOO_FOLDERS for p in folder.glob(f"{env_id}-{mode}*.pt")}
+    own = members_against(env_id, mode, learner)
+    assert own < every
+    kept = {str(p) for p in zoo_members(env_id, mode, victim_digest(learner, env_id, mode))}
+    assert kept == every - own
+    if learner == "bc":  # DAgger's adversaries stay in BC's zoo
+        assert members_against(env_id, mode, DEFAULT_POLICY) <= kept
+    copy = tmp_path / "mine.pt"
+    shutil.copy(policy_file(learner, env_id, mode), copy)
+    assert {str(p) for p in zoo_members(env_id, mode, victim_digest(str(copy), env_id, mode))} == kept
+    assert victim_digest("ros", env_id, mode) is None
+
+
+@pytest.mark.slow
+def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_new_ones(pipeline, tmp_path):
+    folder, first, _ = pipeline
+    rerun = shutil.copytree(folder, tmp_path / "rerun")  # copy2: the files keep their times
+    files = [rerun / first.surrogate.name, rerun / first.adversary.name]
+    before = [(p.stat().st_mtime_ns, p.read_bytes()) for p in files]
+    again, boxes = run_pipeline(rerun)
+    assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
+    assert (again.zoo, again.screened) == (first.zoo, first.screened)
+    other, boxes = run_pipeline(rerun, eps=0.2)
+    assert len(boxes) == 1 and boxes[0].asked > 0  # the policy asked again, for the new surrogate
+    assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
+    retrained = load_adversary(other.adversary)
+    assert retrained.eps == 0.2 and retrained.meta["provenance"]["victim_sha256"] == sha256(other.surrogate)
+    assert other.surrogate.read_bytes() != before[0][1]
