@@ -4,10 +4,12 @@
 
 For each attacked mode: the clean return and every attack's return on the same env
 seeds (paired: episode ``i`` resets with seed ``seed + i`` in every cell), the drop from clean with a paired
-Student-t 95% interval, an eps sweep (0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the
-expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, SPSA^k
-(zeroth order: it queries the policy's actions) and ARIL-A trained against *this* policy within the budget;
-and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
+Student-t 95% interval, an eps sweep per attack (the budget's: eps alone for quick, 0.25, 0.5, 1 and 2 x eps for
+full), the worst case at eps, and the expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise;
+the black-box ones, SPSA^k (zeroth order: it queries the policy's actions) and those of the black-box pipeline
+(:mod:`aril_ros.verdict`: FGSM^k on a surrogate fitted to the policy's answers, the zoo's strongest bundled ARIL-A,
+ARIL-A trained against the surrogate within the budget, and it with query-time search); and, when the policy is a
+file whose gradients can be taken, the white-box FGSM and FGSM^k. eps is the
 calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is
 another file in each mode, each with a clean cell of its own (a drop compares the same policy clean and attacked).
 
@@ -17,7 +19,7 @@ cell is instead a run of the ROS 2 graph with a policy node serving the file (th
 runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`~aril_ros.cell_runner.GRAPH_RUN_CPUS` CPUs
 on its node, in a ROS domain of its own there, its log coming back with ``keep_logs:=true``. ``policy:=external``
 scores a ROS 2 policy node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
-your node in the loop, and ARIL-A trains against it through the same topics (its answers only, never weights).
+your node in the loop, and the surrogate is fitted to its answers through the same topics (never weights).
 Start the node in a domain of your choosing and name it::
 
     ROS_DOMAIN_ID=42 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python my_policy.py --ros-args -p act_dim:=6 &
@@ -29,15 +31,17 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
 
     scorecard.md             the page: per mode a table and the sweep figure
     scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|;
-                             for a name trained per mode, the file scored in each mode
+                             for a name trained per mode, the file scored in each mode; per mode the pipeline's
+                             files, the surrogate's questions and fidelity, the zoo screened (best first)
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
-    adversary-<mode>.pt      the ARIL-A trained against the policy; a rerun reuses it (same policy, eps, steps;
-                             for an external node: another node needs another out:= folder)
+    surrogate-<mode>.pt      the surrogate fitted to the policy's answers; a rerun reuses it (same policy, eps,
+                             horizon; for an external node: another node needs another out:= folder)
+    adversary-<mode>.pt      the ARIL-A trained against the surrogate; a rerun reuses it (same surrogate, eps, steps)
     logs/<mode>-<attack>-<eps>.mcap   through the graph (policy:=external, via:=graph) with keep_logs:=true: each
                                       graph run's log
 
-A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
-evaluations at most.
+A rerun with the same settings reuses the surrogates and the trained adversaries, so an interrupted scorecard
+resumes from its evaluations at most.
 
 This module is the plan: the arguments, the cells (mode, attack, eps) and the adversaries they need, and the
 worst case of each mode. :mod:`aril_ros.cell_runner` runs the cells (the sweep's progress lines give the ETA);
