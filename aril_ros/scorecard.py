@@ -4,7 +4,8 @@
 
 For each attacked mode: the clean return and every attack's return on the same env seeds (paired: episode ``i``
 resets with seed ``seed + i`` in every cell), the drop from clean with a paired Student-t 95% interval, an eps sweep
-(the full budget: 0.25, 0.5, 1 and 2 x eps) per attack, the worst case at eps, and the expert disagreement
+per attack (the budget's: eps alone for quick; 0.25, 0.5, 1 and 2 x eps for full), the worst case at eps, and the
+expert disagreement
 ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the policy for actions:
 SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
@@ -32,18 +33,19 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
 
     scorecard.md             the page: per mode a table and the sweep figure
     scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|;
-                             for a name trained per mode, the file scored in each mode
+                             for a name trained per mode, the file scored in each mode; per mode the pipeline's
+                             files, the surrogate's questions and fidelity, the zoo screened (best first)
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     surrogate-<mode>.pt      the black-box pipeline's copy of the policy (aril_ros.verdict); a rerun reuses it (same
-                             policy, eps; for an external node: another node needs another out:= folder)
+                             policy, eps, horizon; for an external node: another node needs another out:= folder)
     adversary-<mode>.pt      the ARIL-A trained against the surrogate from the zoo's strongest; a rerun reuses it
                              (same surrogate, eps, at least the budget's steps)
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
 
-A rerun with the same settings reuses the trained adversaries, so an interrupted scorecard resumes from its
-evaluations at most.
+A rerun with the same settings reuses the surrogates and the trained adversaries, so an interrupted scorecard
+resumes from its evaluations at most.
 
 This module is the plan: the arguments, the cells (mode, attack, eps) and the adversaries they need, and the
 worst case of each mode. :mod:`aril_ros.cell_runner` runs the cells (the sweep's progress lines give the ETA);

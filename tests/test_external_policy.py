@@ -48,14 +48,15 @@ LONG = os.environ.get("ARIL_LONG_TESTS") == "1"
 @pytest.mark.slow
 @pytest.mark.parametrize("shortened", [
     dict(episodes=1, adversary_steps=2048, horizon=40, scales="1"),
-    pytest.param({}, marks=pytest.mark.skipif(not LONG, reason="the quick budget unshortened, ~25 min: "
+    pytest.param({}, marks=pytest.mark.skipif(not LONG, reason="the quick budget unshortened: "
                                               "ARIL_LONG_TESTS=1 python run_tests.py -k quick_budget")),
 ], ids=["shortened", "unshortened"])
 def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_path):
     """The node as the doc gives it, scored by ``aril scorecard policy:=external budget:=quick``: both modes, every
-    black-box attack through the graph (ARIL-A trained on its answers), each cell on the same seeds; SPSA^k asks the
-    budget's queries per step as probes, and the steps are the node's answers to the observations stepped on. The
-    default suite runs the quick budget with fewer and shorter episodes and a shorter adversary training."""
+    black-box attack through the graph (a surrogate fitted to its answers, ARIL-A trained against that surrogate),
+    each cell on the same seeds; SPSA^k asks the budget's queries per step as probes, and the steps are the node's
+    answers to the observations stepped on. The default suite runs the quick budget with fewer and shorter episodes
+    and a shorter adversary training."""
     from aril_ros.scorecard import BUDGETS, ScorecardConfig, scorecard
 
     budget = BUDGETS["quick"]
@@ -73,7 +74,7 @@ def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_p
     seeds = [card["settings"]["seed"] + i for i in range(episodes)]
     assert list(card["modes"]) == ["sensory", "physical"]
     for mode, result in card["modes"].items():
-        assert set(result["attacks"]) == {"random", "spsa", "aril_a"}
+        assert set(result["attacks"]) == {"random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search"}
         for attack, sweep in result["attacks"].items():
             for cell in sweep.values():
                 assert [e["env_seed"] for e in cell["episodes"]] == seeds
@@ -152,7 +153,8 @@ def test_out_of_range_actions_move_as_clipped_but_cost_as_sent(env_id):
 def test_a_white_box_attack_on_an_external_policy_is_refused_naming_the_black_box_ones(attack):
     from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
 
-    with pytest.raises(GraphError, match=f"attack:={attack} is white-box.*black-box one: random, spsa, aril_a$"):
+    with pytest.raises(GraphError,
+                       match=f"attack:={attack} is white-box.*black-box one: random, spsa, aril_a, transfer$"):
         Orchestrator(GraphConfig(attack=attack, policy="external", record="off"))
 
 

@@ -1,4 +1,5 @@
-"""aril scorecard: paired cells, the drop and its interval from the episodes, the page, reuse of the adversary."""
+"""aril scorecard: paired cells, the drop and its interval from the episodes, the page, the black-box pipeline's
+record and reuse of its files."""
 import dataclasses
 import json
 import math
@@ -10,9 +11,11 @@ import pytest
 
 from aril_ros.cell_runner import engine_cell
 from aril_ros.evaluation import EvalConfig, evaluate
-from aril_ros.registry import ATTACKS
+from aril_ros.policy import load_policy
+from aril_ros.registry import SCORECARD_ATTACKS
 from aril_ros.report.stats import t95
-from aril_ros.scorecard import SCORED_ATTACKS, ScorecardConfig, scorecard
+from aril_ros.scorecard import PIPELINE_ATTACKS, SCORED_ATTACKS, ScorecardConfig, scorecard
+from aril_ros.verdict import relative, victim_digest, zoo_members
 
 
 SMALL = dict(env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096, horizon=25, scales="2,1")
@@ -67,13 +70,16 @@ def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_car
 
 
 @pytest.mark.slow
-def test_a_rerun_reuses_the_adversary_trained_against_the_policy(small_card, tmp_path):
+def test_a_rerun_reuses_the_surrogate_and_the_adversary_trained_against_it(small_card, tmp_path):
     cfg, out, _, lines = small_card
-    assert any("training ARIL-A against" in line for line in lines)
+    made = ("[surrogate]", "[train-adversary")  # what fitting the surrogate and training ARIL-A log
+    assert all(any(line.startswith(start) for line in lines) for start in made)
     again, rerun = [], shutil.copytree(out, tmp_path / "card")  # the other tests read the first run's folder
     scorecard(dataclasses.replace(cfg, attacks="aril_a", scales="1", out=str(rerun)),
               log=lambda line, **_: again.append(line))
-    assert (rerun / "adversary-sensory.pt").read_bytes() == (out / "adversary-sensory.pt").read_bytes()
+    assert not any(line.startswith(made) for line in again)
+    for name in ("surrogate-sensory.pt", "adversary-sensory.pt"):
+        assert (rerun / name).read_bytes() == (out / name).read_bytes()
     first, second = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"] for folder in (out, rerun))
     assert second["clean"] == first["clean"]
     assert second["attacks"] == {"aril_a": {"1.0": first["attacks"]["aril_a"]["1.0"]}}
@@ -92,7 +98,34 @@ def test_the_page_quotes_each_attacks_paired_drop_at_eps(small_card):
     for attack, sweep in sensory["attacks"].items():
         drop = paired_drop(sensory["clean"], sweep["1.0"])
         assert f"| {drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] |" in rows[
-            ATTACKS[attack]]
+            SCORECARD_ATTACKS[attack]]
+
+
+def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_policy(small_card):
+    """The rows of the pipeline's attacks, run on its files, and its line on the page: the surrogate's questions and
+    held-out fidelity (its file's own record), the zoo's choice (the strongest of those screened, which are every
+    bundled adversary but the scored DAgger's own)."""
+    cfg, out, page, _ = small_card
+    sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
+    text = page.read_text()
+    rows = {line.split(" | ")[0].lstrip("| ") for line in text.splitlines() if line.startswith("| ")}
+    assert {SCORECARD_ATTACKS[attack] for attack in PIPELINE_ATTACKS} <= rows
+    made = load_policy(out / "surrogate-sensory.pt").meta.provenance
+    assert (sensory["surrogate_fidelity"], sensory["surrogate_queries"]) == (made["fidelity"], made["queries"])
+    screened = sensory["zoo_screened"]
+    assert sensory["zoo"] == screened[0][1] and screened == sorted(screened)
+    others = zoo_members(cfg.env, "sensory", victim_digest("dagger", cfg.env, "sensory"))
+    assert sorted(member for _, member in screened) == sorted(relative(member) for member in others)
+    fidelity = made["fidelity"]
+    assert (f"Surrogate `{sensory['surrogate']}`: {made['queries']:,} questions to the policy, held-out error "
+            f"{fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); zoo: `{sensory['zoo']}`, the strongest of "
+            f"{len(screened)} against the surrogate") in text
+    for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
+        alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
+                                    attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,
+                                    horizon=25))
+        row = sensory["attacks"]["zoo" if attack == "aril_a" else attack]["1.0"]
+        assert [round(e["return"], 3) for e in row["episodes"]] == alone["returns"]
 
 
 @pytest.mark.parametrize("changes, message", [
@@ -104,7 +137,7 @@ def test_the_page_quotes_each_attacks_paired_drop_at_eps(small_card):
     ({"via": "ros"}, "unknown via 'ros'; choose one of engine, graph"),
     ({"policy": "external", "domain": "181"}, r"domain:=181 is not an allowed ROS domain id: auto, 0-101 or 215-232"),
     ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, "
-                                                                  "aril_a"),
+                                                                  "transfer, zoo, aril_a, aril_a_search$"),
     ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
 ])
 def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, message):
@@ -172,9 +205,10 @@ def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_nam
 
 @pytest.mark.slow
 def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_file(small_card, tmp_path):
-    """The bundled DAgger learner run as the user's own node: every cell through the graph, ARIL-A trained
-    against the node's answers; the graph is bit-exact to the engine, so the figures are the engine's (random runs
-    through the graph in tests/test_graph.py)."""
+    """The bundled DAgger learner run as the user's own node: every cell through the graph, the surrogate fitted to
+    the node's answers, ARIL-A trained against it; the graph is bit-exact to the engine, so the node answers as the
+    file does, the surrogate is the file's and the figures are the engine's (random runs through the graph in
+    tests/test_graph.py)."""
     import os
     import signal
     import subprocess
@@ -192,9 +226,16 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     by_node, by_file = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"]
                         for folder in (tmp_path / "node", small_card[1]))
     assert by_node["clean"]["episodes"] == by_file["clean"]["episodes"]
-    # the same adversary, trained on the node's answers, at its eps and (rescale:=true through the graph) at 2x
+    # the same surrogate, fitted to the node's answers, and the same adversary trained against it, at its eps and
+    # (rescale:=true through the graph) at 2x
+    assert load_policy(tmp_path / "node" / "surrogate-sensory.pt").meta.provenance["victim"] == "ros"
+    for key in ("surrogate_fidelity", "surrogate_queries"):
+        assert by_node[key] == by_file[key]
+    # a node has no file whose digest could set adversaries aside: its zoo is the file's and DAgger's own
+    screened_for_file = {tuple(member) for member in by_file["zoo_screened"]}
+    assert screened_for_file < {tuple(member) for member in by_node["zoo_screened"]}
     assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]
-    assert any("training ARIL-A against ros" in line for line in lines)
+    assert any(line.startswith("[surrogate]") for line in lines)
 
 
 @pytest.mark.slow
