@@ -5,8 +5,8 @@
 For each attacked mode: the clean return and every attack's return on the same env seeds (paired: episode ``i``
 resets with seed ``seed + i`` in every cell), the drop from clean with a paired Student-t 95% interval, an eps sweep
 per attack (the budget's: eps alone for quick; 0.25, 0.5, 1 and 2 x eps for full), the worst case at eps, and the
-expert disagreement
-``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the policy for actions:
+expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the
+policy for actions:
 SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
 against the surrogate from it, alone and with query-time search; and, when the policy is a file whose gradients can
