@@ -32,6 +32,7 @@ from .report import ReportConfig, build_report
 from .runlog import RunLogError, recover
 from .scan import ScanConfig, scan_adversary
 from .scorecard import ScorecardConfig, scorecard
+from .verdict import FitSurrogateConfig, fit_surrogate_command
 
 
 def run_eval(cfg: EvalConfig) -> dict:
@@ -93,6 +94,8 @@ COMMANDS = {
                        "env, resumable, into the user data folder ($ARIL_DATA)."),
     "scorecard": Command(ScorecardConfig, scorecard, "How robust is a policy: clean vs every attack on the same "
                          "episodes, paired drops, eps sweeps, the worst case; one page with figures."),
+    "fit-surrogate": Command(FitSurrogateConfig, fit_surrogate_command, "Copy a policy from its answers alone (a "
+                             "surrogate): what attack:=transfer runs FGSM^k on."),
     "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
     "log-recover": Command(RecoverConfig, run_recover, "Rewrite the intact steps of a cut-short or damaged run log."),
 }

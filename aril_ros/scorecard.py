@@ -107,7 +107,7 @@ class Budget:
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
                 f"the surrogate, SPSA^k {self.spsa_iterations} x {self.spsa_samples} directions "
-                f"({self.spsa_queries} queries per step), eps x {self.scales}")
+                f"({self.spsa_queries} queries per step)")
 
 
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
@@ -179,12 +179,14 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         clean = dict(zip(tested, cleans))
         made = {mode: pipeline_for(cfg, mode, eps[mode], budget, out, log)
                 for mode in modes} if set(attacks) & set(PIPELINE_ATTACKS) else {}
+        rows = {mode: [a for a in attacks if not (a == "zoo" and mode in made and made[mode].zoo is None)]
+                for mode in modes}  # an env with no bundled adversary (a new robot) has no zoo
         plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode))
-                for mode in modes for attack in attacks for scale in scales]
+                for mode in modes for attack in rows[mode] for scale in scales]
         cells = iter(runner.run(plan, log))
     results = {}
     for mode in modes:
-        mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in attacks}
+        mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in rows[mode]}
         mode_clean = clean[policies[mode]]
         results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
                          **({"policy": policies[mode]} if policies[mode] != cfg.policy else {}),
@@ -279,7 +281,7 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
     """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo."""
     made_by = load_policy(made.surrogate).meta.provenance
     return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
-            "surrogate_queries": made_by["queries"], "zoo": relative(made.zoo), "zoo_screened": made.screened,
+            "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo), "zoo_screened": made.screened,
             "adversary": relative(made.adversary)}
 
 

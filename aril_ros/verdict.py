@@ -33,7 +33,8 @@ from .attacks import LearnedAttack
 from .envs import HORIZON, layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .protocol import ros_domain
-from .registry import DATA_DIR, DEFENSES, bundled_file
+from .args import arg
+from .registry import ATTACKED_MODES, DATA_DIR, DEFAULT_ENV, DEFENSES, MAX_EPS, bundled_file, calibrated_eps, check_name
 from .rollout import RolloutEngine
 from .surrogate import SurrogateConfig, fit_surrogate
 
@@ -50,7 +51,8 @@ class BlackBoxAttacks:
     """What the pipeline made for one mode: the surrogate (transfer), the zoo's best and the trained adversary."""
 
     surrogate: Path
-    zoo: Path
+    zoo: Path | None
+    """None where the env has no bundled adversary (a new robot): no zoo row, ARIL-A from fresh weights"""
     adversary: Path
     screened: list[tuple[float, str]]
     """every zoo member's mean return against the surrogate, best first"""
@@ -64,21 +66,22 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
     surrogate = copy_policy(victim_name, env_id, mode, eps, folder / f"surrogate-{mode}.pt", domain, log, horizon)
     screened = screen_zoo(zoo_members(env_id, mode, victim_digest(victim_name, env_id, mode)), surrogate, env_id,
                           mode, eps, expert, horizon)
-    best = Path(screened[0][1])
-    log(f"[verdict] {mode}: the zoo's strongest against the surrogate is {relative(best)} "
-        f"({len(screened)} screened, mean return {screened[0][0]:.1f})")
+    best = Path(screened[0][1]) if screened else None
+    log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(best)} ({len(screened)} "
+                                 f"screened, mean return {screened[0][0]:.1f})" if best else
+                                 f"no bundled adversary of {env_id} {mode} for the zoo: ARIL-A from fresh weights"))
     adversary = train_on_surrogate(folder / f"adversary-{mode}.pt", surrogate, best, env_id, mode, eps, expert,
                                    steps, log)
     return BlackBoxAttacks(surrogate, best, adversary, screened)
 
 
-def train_on_surrogate(path: Path, surrogate: Path, warm_start: Path, env_id: str, mode: str, eps: float, expert: str,
-                       steps: int, log) -> Path:
-    """Step 3: ARIL-A at ``path``, trained ``steps`` steps against the surrogate from ``warm_start`` (when it was
-    trained at ``eps``; else from fresh weights); the one there when it was trained against this surrogate file
+def train_on_surrogate(path: Path, surrogate: Path, warm_start: Path | None, env_id: str, mode: str, eps: float,
+                       expert: str, steps: int, log) -> Path:
+    """Step 3: ARIL-A at ``path``, trained ``steps`` steps against the surrogate from ``warm_start`` (when there is
+    one trained at ``eps``; else from fresh weights); the one there when it was trained against this surrogate file
     (its digest), at ``eps``, for at least ``steps``."""
     short = path.exists() and load_adversary(path).meta.get("provenance", {}).get("steps", 0) < steps
-    init = str(warm_start) if load_adversary(warm_start).eps == eps else ""
+    init = str(warm_start) if warm_start and load_adversary(warm_start).eps == eps else ""
     return ready_adversary(path, relative(surrogate), env_id, mode, eps, expert, steps, short, log, init=init)
 
 
@@ -151,10 +154,7 @@ def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
 def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
                expert: str, horizon: int = HORIZON) -> list[tuple[float, str]]:
     """Step 2: each member's mean return against the surrogate (scaled to ``eps``) over episodes of ``horizon``
-    steps, lowest first."""
-    if not members:
-        raise ValueError(f"no bundled adversary of {env_id} {mode} is left for the zoo once those trained against "
-                         "this policy are set aside")
+    steps, lowest first (none for no member)."""
     policy, expert_policy = load_policy(surrogate, env_id), resolve_policy(expert, env_id)
     scores = []
     for member in members:
@@ -173,3 +173,26 @@ def relative(path: Path) -> str:
     """``path`` relative to here when it lies below (what files and pages record), else as it is."""
     path = Path(path).resolve()
     return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
+
+
+@dataclass
+class FitSurrogateConfig:
+    """Arguments of ``aril fit-surrogate``."""
+
+    victim: str = arg("dagger", "the policy to copy from its answers: a bundled name, a policy file, or ros (a running "
+                                "policy node in domain:=)")
+    env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
+    mode: str = arg("sensory", "the attacked mode whose states it visits: sensory or physical")
+    eps: float = arg(0.0, "the budget of the noise it visits under and of its probes (0: the calibrated one)",
+                     low=0.0, high=MAX_EPS)
+    domain: str = arg("", "victim:=ros: the ROS_DOMAIN_ID the node runs in")
+    horizon: int = arg(HORIZON, "steps per visited episode", low=1, high=1_000_000)
+    out: str = arg("", "where to write it (default runs/surrogate-<env>-<mode>.pt)")
+
+
+def fit_surrogate_command(cfg: FitSurrogateConfig) -> Path:
+    """``aril fit-surrogate``: step 1 alone, for ``aril eval attack:=transfer attack_file:=<it>``."""
+    check_name("mode", cfg.mode, ATTACKED_MODES)
+    eps = cfg.eps or calibrated_eps(cfg.env, cfg.mode)
+    out = Path(cfg.out or f"runs/surrogate-{cfg.env}-{cfg.mode}.pt")
+    return copy_policy(cfg.victim, cfg.env, cfg.mode, eps, out, cfg.domain, print, cfg.horizon)

@@ -11,6 +11,7 @@ import pytest
 
 from aril_ros.cell_runner import engine_cell
 from aril_ros.evaluation import EvalConfig, evaluate
+from aril_ros.adversary_net import load_adversary
 from aril_ros.policy import load_policy
 from aril_ros.registry import SCORECARD_ATTACKS
 from aril_ros.report.stats import t95
@@ -268,3 +269,17 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == [
         "clean-none-0.mcap", "sensory-fgsm-0.3.mcap", "sensory-fgsm-0.6.mcap"]
     assert "a run of the ROS 2 graph" in (tmp_path / "card" / "scorecard.md").read_text()
+
+
+def test_an_env_without_bundled_adversaries_is_scored_without_a_zoo(tmp_path, monkeypatch):
+    """A new robot has no bundled ARIL-A: the pipeline trains its own from fresh weights and the page has no zoo row
+    (the zoo's screening refused to run with no member, failing the whole scorecard)."""
+    import aril_ros.verdict
+
+    monkeypatch.setattr(aril_ros.verdict, "ZOO_FOLDERS", (tmp_path / "no-adversaries",))
+    cfg = ScorecardConfig(policy="dagger", out=str(tmp_path / "card"), **{**SMALL, "attacks": "zoo,aril_a"})
+    page = scorecard(cfg, log=lambda *a, **k: None)
+    sensory = json.loads((tmp_path / "card" / "scorecard.json").read_text())["modes"]["sensory"]
+    assert list(sensory["attacks"]) == ["aril_a"] and sensory["zoo"] is None and sensory["zoo_screened"] == []
+    assert "init:=" not in load_adversary(tmp_path / "card" / "adversary-sensory.pt").meta["provenance"]["command"]
+    assert "no bundled adversary for a zoo" in page.read_text()

@@ -13,8 +13,9 @@ from aril_ros import verdict
 from aril_ros.adversary import load_adversary
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
+from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.policy import load_policy, policy_file, resolve_policy
-from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS
+from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, calibrated_eps
 from aril_ros.rollout import RolloutEngine
 from aril_ros.surrogate import SurrogateConfig, fit_surrogate
 from aril_ros.verdict import SEARCH, black_box_attacks, victim_digest, zoo_members
@@ -181,3 +182,21 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     retrained = load_adversary(other.adversary)
     assert retrained.eps == 0.2 and retrained.meta["provenance"]["victim_sha256"] == sha256(other.surrogate)
     assert other.surrogate.read_bytes() != before[0][1]
+
+
+def test_aril_fit_surrogate_writes_the_file_attack_transfer_runs_on(tmp_path, capsys):
+    """``aril fit-surrogate`` (the command the errors of attack transfer name) makes the surrogate; ``aril eval
+    attack:=transfer`` runs FGSM^k on it; a clean mode is refused in one line."""
+    from aril_ros.cli import main
+
+    out = tmp_path / "s.pt"
+    assert main(["fit-surrogate", "victim:=bc", "env:=Swimmer-v5", "horizon:=30", f"out:={out}"]) == 0
+    made = load_policy(out).meta.provenance
+    assert (made["algorithm"], made["victim"], made["mode"], made["horizon"]) == ("surrogate", "bc", "sensory", 30)
+    assert made["eps"] == calibrated_eps("Swimmer-v5", "sensory")
+    result = evaluate(EvalConfig(env="Swimmer-v5", policy="bc", mode="sensory", attack="transfer",
+                                 attack_file=str(out), episodes=2, horizon=30))
+    assert result["attack"] == "transfer" and result["max_abs_delta"] == pytest.approx(made["eps"])
+    assert main(["fit-surrogate", "mode:=clean"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "aril fit-surrogate: error: unknown mode 'clean'; choose one of sensory, physical")

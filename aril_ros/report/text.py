@@ -243,9 +243,10 @@ def pipeline_lines(mode_result: dict) -> list[str]:
         return []
     fidelity = mode_result["surrogate_fidelity"]
     return [f"Surrogate `{mode_result['surrogate']}`: {mode_result['surrogate_queries']:,} questions to the policy, "
-            f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); zoo: `{mode_result['zoo']}`, the "
-            f"strongest of {len(mode_result['zoo_screened'])} against the surrogate; ARIL-A: "
-            f"`{mode_result['adversary']}`.", ""]
+            f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); "
+            + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
+               "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
+            + f"ARIL-A: `{mode_result['adversary']}`.", ""]
 
 
 def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool) -> str:
