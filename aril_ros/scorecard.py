@@ -99,6 +99,8 @@ class Budget:
     spsa_samples: int
     scales: str
     """the eps sweep, as multiples of the mode's eps (the default of ``scales:=``)"""
+    refines: int
+    """times the surrogate is asked again where ARIL-A leads the policy, and fitted again (ARIL-A's steps split)"""
 
     @property
     def spsa_queries(self) -> int:
@@ -106,15 +108,16 @@ class Budget:
 
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
-                f"the surrogate, SPSA^k {self.spsa_iterations} x {self.spsa_samples} directions "
-                f"({self.spsa_queries} queries per step)")
+                f"the surrogate, refined {self.refines} time{'s' if self.refines != 1 else ''}, SPSA^k "
+                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
 
 
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
 # engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8) and twice the paper's 1M steps
-BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1"),
+BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1",
+                           refines=1),
            "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
-                          scales="0.25,0.5,1,2")}
+                          scales="0.25,0.5,1,2", refines=3)}
 SCORED_ATTACKS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
@@ -274,7 +277,7 @@ def pipeline_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, ou
     log(f"[scorecard] {mode}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
         f"{budget.adversary_steps:,} steps against the surrogate (eps {eps:g})")
     return black_box_attacks(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps, cfg.expert,
-                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon)
+                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines)
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:

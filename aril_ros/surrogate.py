@@ -54,12 +54,26 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
     """The surrogate of ``victim`` (anything with ``act(obs_batch)``) in ``mode`` at ``eps``, from episodes of
     ``horizon`` steps, written to ``out``."""
     started = time.time()
-    layout = layout_of(env_id)
+    questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, np.random.default_rng(cfg.seed))
+    made = {"victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon, "queries": int(len(questions))}
+    return fit_answers(questions, answers, env_id, cfg, made, out, log, started)
+
+
+def gather(victim, env_id: str, mode: str, eps: float, cfg: SurrogateConfig, horizon: int, rng: np.random.Generator,
+           attack=None, first: int = seeds.SURROGATE) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 1 and 2: the questions put to ``victim`` and its answers: ``cfg.episodes`` episodes from env seed
+    ``first`` (under ``attack``, or every other one under noise) and ``cfg.probes`` points around each step."""
+    visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon, attack, first)
+    probes = probe_points(visited, layout_of(env_id), eps, cfg.probes, rng)
+    return np.concatenate([visited, probes]), np.concatenate([driven, ask(victim, probes)])
+
+
+def fit_answers(questions: np.ndarray, answers: np.ndarray, env_id: str, cfg: SurrogateConfig, made: dict,
+                out: str | Path, log=print, started: float | None = None) -> Path:
+    """Steps 3 and 4: the surrogate fitted to ``answers`` and judged on a tenth held out, written to ``out`` with
+    ``made`` (what it copies, and how) in its provenance."""
+    started = time.time() if started is None else started
     rng = np.random.default_rng(cfg.seed)
-    visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon)
-    probes = probe_points(visited, layout, eps, cfg.probes, rng)
-    questions = np.concatenate([visited, probes])
-    answers = np.concatenate([driven, ask(victim, probes)])
     held_out = rng.permutation(len(questions))[: len(questions) // 10]
     train = np.setdiff1d(np.arange(len(questions)), held_out)
     torch.manual_seed(cfg.seed)  # the initial weights
@@ -68,32 +82,33 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
                                        obs_std=(questions.std(0) + 1e-6).tolist()))
     fit(surrogate, questions[train], answers[train], cfg)
     fidelity = judge(surrogate, questions[held_out], answers[held_out])
-    surrogate.meta.provenance = {**stamp("aril fit-surrogate", cfg), "algorithm": "surrogate", "victim": victim_name,
-                                 "mode": mode, "eps": eps, "horizon": horizon, "queries": int(len(questions)),
-                                 "fidelity": fidelity,
+    surrogate.meta.provenance = {**stamp("aril fit-surrogate", cfg), "algorithm": "surrogate", **made,
+                                 "answers": int(len(questions)), "fidelity": fidelity,
                                  "seconds": round(time.time() - started, 1)}
     path = save_policy(surrogate, out)
-    log(f"[surrogate] {path}: {len(questions):,} questions to the victim, held-out error {fidelity['mse']:.4f} "
+    log(f"[surrogate] {path}: {made['queries']:,} questions to the victim, held-out error {fidelity['mse']:.4f} "
         f"(R^2 {fidelity['r2']:.4f}), {time.time() - started:.0f} s")
     return path
 
 
-def visit(victim, env_id: str, mode: str, eps: float, episodes: int,
-          horizon: int = HORIZON) -> tuple[np.ndarray, np.ndarray]:
-    """What the victim saw, step by step, driving ``episodes`` episodes of ``horizon`` steps, and what it answered
-    (its first questions: asked once, kept); the odd episodes under uniform ±eps noise (in ``mode``: seen, or written
+def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: int = HORIZON, attack=None,
+          first: int = seeds.SURROGATE) -> tuple[np.ndarray, np.ndarray]:
+    """What the victim saw, step by step, driving ``episodes`` episodes of ``horizon`` steps from env seed ``first``,
+    and what it answered (its first questions: asked once, kept); under ``attack`` (an
+    :class:`~aril_ros.attacks.Attack`), or the odd episodes under uniform ±eps noise (in ``mode``: seen, or written
     into the simulator's state)."""
     layout = layout_of(env_id)
     sims = SimBatch(env_id, episodes, horizon)
-    first = seeds.SURROGATE
     rngs = [episode_rng(first, e) for e in range(episodes)]
     obs = sims.reset([episode_seed(first, e) for e in range(episodes)])
     running, seen_rows, answer_rows = np.arange(episodes), [], []
     try:
         while running.size:
             delta = np.zeros_like(obs[running])
+            if attack is not None:
+                delta = attack.perturb(obs[running], [rngs[e] for e in running])
             for row, e in enumerate(running):
-                if e % 2:
+                if attack is None and e % 2:
                     delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
             seen = sims.seen(mode, obs[running], delta, running)
             seen_rows.append(seen)
