@@ -298,7 +298,7 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     """A node of the user's own (not aril_ros's MLPPolicy: another depth, activations and normalisation) scored by
     ``aril scorecard policy:=external`` in both modes: every black-box row has its figure, and the node answered
     exactly what the scorecard says it was asked: each run's steps (the clean one's too), each cell's questions, and
-    the surrogates' questions (asked before the cells, so with the first cell's run)."""
+    each mode's surrogate's questions (asked after the clean run, before the first cell's)."""
     from aril_ros.scorecard import PIPELINE_ATTACKS, ScorecardConfig, scorecard
 
     env_id, layout = "Swimmer-v5", layout_of("Swimmer-v5")
@@ -336,4 +336,8 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     expected = [(steps(clean), 0)] + [(steps(cell), cell["queries"]) for cell in cells]
     expected[1] = (expected[1][0], expected[1][1] + surrogates)
     assert runs_answered(tags) == expected
+    # between the clean run and the first cell's, the surrogates' questions, mode by mode (each numbered from 0)
+    between = tags[steps(clean):tags.index("0/0", steps(clean))]
+    starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
+    assert np.diff([*starts, len(between)]).tolist() == [r["surrogate_queries"] for r in card["modes"].values()]
     assert all(cell["queries"] == cell["queries_per_step"] * steps(cell) for cell in cells)
