@@ -1,6 +1,6 @@
 """The contract for a user's policy node (msgs_doc/README.md, "Write your own policy node"): the documented node runs
-as a run's policy, the doc's env table is what the envs say, and each way a node can fail is named on run_graph's
-stderr."""
+as a run's policy, a node of another architecture gets a scorecard's verdict with every question to it counted, the
+doc's env table is what the envs say, and each way a node can fail is named on run_graph's stderr."""
 from __future__ import annotations
 
 import importlib.util
