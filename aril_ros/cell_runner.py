@@ -3,7 +3,12 @@ engine, or the same episodes as a run of the ROS 2 graph, as a sweep task (:mod:
 lines give the ETA); every episode's figures come back.
 
     CellRunner("engine", workers=2, address="").run(cells, log)   # [{"eps", "mean_return", "mean_expert_loss",
+                                                                   #   "queries", "queries_per_step",
                                                                    #   "episodes": [...]}, ...] in the cells' order
+
+A cell's ``queries`` are the questions its attack put to the policy (observations asked about only to read the
+answer; each step's own action is not one): on the engine the attack's count of the rows it asked, through the graph
+the probes its run log holds, each a message the policy node answered.
 
 On the engine a cell is a task of one CPU; through the graph a task of :data:`GRAPH_RUN_CPUS`, its run in a ROS
 domain of its own on the task's node, or in the domain given (an external node's, whose cells run one after the
@@ -52,9 +57,9 @@ class CellRunner:
             tasks = run_tasks(engine_cell, [(shipped_job(dataclasses.asdict(cell)),) for cell in cells], self.workers,
                               self.address, label=label, log=log)
         results: list[dict] = [{}] * len(cells)
-        for index, episodes in tasks:
+        for index, (episodes, queries) in tasks:
             cell = cells[index]
-            results[index] = figures(cell, episodes)
+            results[index] = figures(cell, episodes, queries)
             log(f"[scorecard] {cell.mode} {described(cell)} eps {cell.eps:g}: return "
                 f"{results[index]['mean_return']:.1f}", flush=True)
         return results
@@ -80,29 +85,34 @@ def named(cell: EvalConfig) -> str:
             + (f"-search{cell.search}" if cell.search else ""))
 
 
-def figures(cell: EvalConfig, episodes: list[EpisodeStats]) -> dict:
-    """A cell's figures: every episode's (in episode order) and their summary."""
+def figures(cell: EvalConfig, episodes: list[EpisodeStats], queries: int) -> dict:
+    """A cell's figures: every episode's (in episode order), their summary, and the attack's ``queries`` in all and
+    per step (every step is attacked)."""
     episodes = sorted(episodes, key=lambda e: e.episode)
     summary = summarise_episodes(episodes)
     return {"eps": cell.eps, "mean_return": summary["mean_return"], "mean_expert_loss": summary["mean_expert_loss"],
+            "queries": queries, "queries_per_step": round(queries / max(summary["steps"], 1), 2),
             "episodes": [{"episode": e.episode, "env_seed": cell.seed + e.episode, "return": e.reward,
                           "expert_loss": round(e.expert_loss, 6), "steps": e.steps,
                           "max_abs_delta": round(e.max_delta, 6)} for e in episodes]}
 
 
-def engine_cell(job: dict) -> list[EpisodeStats]:
-    """A cell on the engine (a sweep task): ``aril eval`` of ``job``, every episode's figures."""
+def engine_cell(job: dict) -> tuple[list[EpisodeStats], int]:
+    """A cell on the engine (a sweep task): ``aril eval`` of ``job``, every episode's figures and the attack's
+    questions to the policy."""
     episodes = []
-    evaluate(EvalConfig(**job), progress=episodes.append)
-    return episodes
+    summary = evaluate(EvalConfig(**job), progress=episodes.append)
+    return episodes, summary.get("queries", 0)  # an attack that asks nothing has no count
 
 
-def graph_cell(spec: dict) -> list[EpisodeStats]:
-    """A cell as a run of the graph (a sweep task), every episode's figures read back from the run's log."""
+def graph_cell(spec: dict) -> tuple[list[EpisodeStats], int]:
+    """A cell as a run of the graph (a sweep task), every episode's figures and the probes the policy node answered,
+    read back from the run's log."""
     spec = {k: str(v) if isinstance(v, Path) else v for k, v in spec.items()}  # a file's copy on the task's node
     with tempfile.TemporaryDirectory(prefix="aril_scorecard-") as scratch:
         record = Path(spec["record"] or Path(scratch) / "cell.mcap")
         record.parent.mkdir(parents=True, exist_ok=True)
         record.unlink(missing_ok=True)  # a rerun's: the writer takes new files only
         logged = read_run(plugins.load("aril_ros.collectors", "graph")(RoundSpec(**{**spec, "record": record})))
-    return logged.episode_stats  # the recorder's figures, taken once as the run went
+    # the recorder's figures, taken once as the run went; a probe is in the log once asked and answered
+    return logged.episode_stats, len(logged.probe_row)

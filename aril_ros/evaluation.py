@@ -49,7 +49,7 @@ class EvalConfig:
 def evaluate(cfg: EvalConfig, progress=None) -> dict:
     """Run ``cfg.episodes`` episodes; ``progress(stats)`` is called with each episode's
     :class:`aril_ros.step.EpisodeStats` as it ends. Returns the summary (mean/std return, mean expert
-    loss, per-episode returns)."""
+    loss, per-episode returns; for a query attack its questions to the policy, ``queries``, and per step)."""
     torch.set_num_threads(cfg.threads)
     choice = choose_attack(cfg.env, cfg.mode, cfg.policy, cfg.attack, cfg.attack_file)
     attack_name = choice.name
@@ -72,7 +72,8 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     summary = summarise_episodes(episodes)
     return {"env": cfg.env, "policy": cfg.policy, "expert": cfg.expert, "mode": cfg.mode, "attack": attack_name,
             "eps": engine.attack.eps, "seed": cfg.seed, **summary,
-            **({"queries_per_step": round(attack.queries_per_step, 2)} if isinstance(attack, QueryAttack) else {}),
+            **({"queries": attack.queries, "queries_per_step": round(attack.queries_per_step, 2)}
+               if isinstance(attack, QueryAttack) else {}),
             "steps_per_s": round(summary["steps"] / (time.time() - started), 1)}
 
 

@@ -33,6 +33,9 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
 
     scorecard.md             the page: per mode a table and the sweep figure
     scorecard.json           the settings and every episode of every cell: return, expert loss, steps, max|delta|;
+                             per cell its attack's questions to the policy, in all and per step (queries,
+                             queries_per_step: on the engine as the attack counted them, through the graph the
+                             probes the node answered);
                              for a name trained per mode, the file scored in each mode; per mode the pipeline's
                              files, the surrogate's questions and fidelity, the zoo screened (best first)
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals

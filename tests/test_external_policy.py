@@ -1,6 +1,6 @@
 """The contract for a user's policy node (msgs_doc/README.md, "Write your own policy node"): the documented node runs
-as a run's policy, the doc's env table is what the envs say, and each way a node can fail is named on run_graph's
-stderr."""
+as a run's policy, a node of another architecture gets a scorecard's verdict with every question to it counted, the
+doc's env table is what the envs say, and each way a node can fail is named on run_graph's stderr."""
 from __future__ import annotations
 
 import importlib.util
@@ -224,3 +224,120 @@ def test_a_node_that_never_subscribes_is_told_why(ros_args, reliability, cause, 
     finally:
         stop(node)
     assert processes_in_domain(domain) == []
+
+
+ANOTHER_ARCHITECTURE = '''
+
+def elu(x):
+    return np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+
+
+class ThreeLayers:
+    """Not aril_ros's policy: numpy, three hidden layers of 24 (ELU, sin, ELU), the observation centred and scaled by
+    figures of its own and cut at +-5, the action clipped to the bounds; seeded random weights."""
+
+    def __init__(self, obs_dim, act_dim, seed=7):
+        rng = np.random.default_rng(seed)
+        self.center, self.spread = rng.normal(0, 0.5, obs_dim), rng.uniform(0.5, 2.0, obs_dim)
+        sizes = (obs_dim, 24, 24, 24, act_dim)
+        self.layers = [(rng.normal(0, 1.5 / np.sqrt(n), (n, m)), rng.normal(0, 0.1, m))
+                       for n, m in zip(sizes, sizes[1:])]
+        self.activations = (elu, np.sin, elu, lambda x: np.clip(x, -1.0, 1.0))
+
+    def __call__(self, obs):
+        x = np.clip((obs - self.center) / self.spread, -5.0, 5.0)
+        for (weight, bias), activation in zip(self.layers, self.activations):
+            x = activation(x @ weight + bias)
+        return x
+'''
+"""Put before the documented node's class: the policy the node serves."""
+
+
+def another_architectures_node() -> str:
+    """The documented node serving :data:`ANOTHER_ARCHITECTURE`, writing on exit the frame_id of every observation
+    it answered, in order, to the file its ``answered`` parameter names."""
+    code = documented_node()
+    for old, new in (
+            ("import numpy as np\n", "import atexit\nfrom pathlib import Path\n\nimport numpy as np\n"),
+            ("\n\nclass MyPolicy(Node):", ANOTHER_ARCHITECTURE + "\n\nclass MyPolicy(Node):"),
+            ("        self.publisher_ = ",
+             "        self.policy = ThreeLayers(self.declare_parameter('obs_dim', 8).value, self.act_dim)\n"
+             "        self.answered = []\n"
+             "        answered = Path(self.declare_parameter('answered', '').value)\n"
+             "        atexit.register(lambda: answered.write_text(''.join(f'{tag}\\n' for tag in self.answered)))\n"
+             "        self.publisher_ = "),
+            ("np.tanh(np.asarray(obs.position[:self.act_dim]))", "self.policy(np.asarray(obs.position))"),
+            ("        self.publisher_.publish(JointState(header=obs.header,",
+             "        self.answered.append(obs.header.frame_id)\n"
+             "        self.publisher_.publish(JointState(header=obs.header,")):
+        assert code.count(old) == 1, old
+        code = code.replace(old, new)
+    return code
+
+
+def runs_answered(tags: list[str]) -> list[tuple[int, int]]:
+    """The node's answers, run by run, as (steps, probes): a run starts at step 0/0, and a probe belongs to the step it
+    was asked during, the next one answered (its questions come first); probes before a run's first step belong to
+    it, so a surrogate's, asked between two runs, count with the run after them."""
+    runs, probes = [], 0
+    for tag in tags:
+        if "/probe/" in tag:
+            probes += 1
+            continue
+        if tag == "0/0":
+            runs.append([0, 0])
+        runs[-1][0] += 1
+        runs[-1][1] += probes
+        probes = 0
+    assert probes == 0, "probes after the last step"
+    return [tuple(run) for run in runs]
+
+
+@pytest.mark.slow
+def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(tmp_path):
+    """A node of the user's own (not aril_ros's MLPPolicy: another depth, activations and normalisation) scored by
+    ``aril scorecard policy:=external`` in both modes: every black-box row has its figure, and the node answered
+    exactly what the scorecard says it was asked: each run's steps (the clean one's too), each cell's questions, and
+    each mode's surrogate's questions (asked after the clean run, before the first cell's)."""
+    from aril_ros.scorecard import PIPELINE_ATTACKS, ScorecardConfig, scorecard
+
+    env_id, layout = "Swimmer-v5", layout_of("Swimmer-v5")
+    answered = tmp_path / "answered.txt"
+    domain = free_domain()
+    node = start_node(another_architectures_node(), domain, tmp_path, "-p", f"obs_dim:={layout.obs_dim}",
+                      "-p", f"act_dim:={layout.act_dim}", "-p", f"answered:={answered}")
+    try:
+        page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env=env_id, modes="sensory,physical",
+                                         episodes=2, horizon=20, adversary_steps=2048, scales="1",
+                                         out=str(tmp_path / "card")), log=lambda *a, **k: None)
+    finally:
+        stop(node)
+    assert node.returncode == 0 and processes_in_domain(domain) == []
+    card = json.loads((tmp_path / "card" / "scorecard.json").read_text())
+    text = page.read_text()
+    black_box = ("random", "spsa", *PIPELINE_ATTACKS)
+    cells = []
+    for mode, result in card["modes"].items():
+        assert list(result["attacks"]) == list(black_box)
+        for attack, sweep in result["attacks"].items():
+            cell = sweep["1.0"]
+            assert np.isfinite(cell["mean_return"]) and [e["steps"] for e in cell["episodes"]] == [20, 20]
+            cells.append(cell)
+        assert result["surrogate_queries"] > 0 and np.isfinite(result["worst"]["drop_pct"])
+        per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in result["attacks"].items()}
+        assert per_step["random"] == per_step["transfer"] == 0 and per_step["spsa"] == 6
+        assert per_step["aril_a_search"] == per_step["aril_a"] + 9
+        assert f"## {mode}," in text
+    steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
+    surrogates = sum(result["surrogate_queries"] for result in card["modes"].values())
+    clean = card["modes"]["sensory"]["clean"]
+    tags = answered.read_text().splitlines()
+    assert len(tags) == steps(clean) + sum(steps(cell) + cell["queries"] for cell in cells) + surrogates
+    expected = [(steps(clean), 0)] + [(steps(cell), cell["queries"]) for cell in cells]
+    expected[1] = (expected[1][0], expected[1][1] + surrogates)
+    assert runs_answered(tags) == expected
+    # between the clean run and the first cell's, the surrogates' questions, mode by mode (each numbered from 0)
+    between = tags[steps(clean):tags.index("0/0", steps(clean))]
+    starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
+    assert np.diff([*starts, len(between)]).tolist() == [r["surrogate_queries"] for r in card["modes"].values()]
+    assert all(cell["queries"] == cell["queries_per_step"] * steps(cell) for cell in cells)

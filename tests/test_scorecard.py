@@ -89,17 +89,25 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_trained_against_it(small
         "[sweep] scorecard clean cell: 1/1 done", "[sweep] scorecard cells: 1/1 done"]
 
 
-def test_the_page_quotes_each_attacks_paired_drop_at_eps(small_card):
-    """The page's rows are report.stats.paired_drop of the cells in scorecard.json (its one producer)."""
+def test_the_page_quotes_each_attacks_paired_drop_and_questions_per_step_at_eps(small_card):
+    """The page's rows are report.stats.paired_drop of the cells in scorecard.json (its one producer), and the
+    questions each attack put to the policy per step, as scorecard.json counted them (a white-box one: gradients)."""
+    from aril_ros.registry import WHITE_BOX
     from aril_ros.report.stats import paired_drop
 
     _, out, page, _ = small_card
     sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
     rows = {line.split(" | ")[0].lstrip("| "): line for line in page.read_text().splitlines() if line.startswith("| ")}
+    assert rows["attack"].split(" | ")[4] == "questions per step"
     for attack, sweep in sensory["attacks"].items():
         drop = paired_drop(sensory["clean"], sweep["1.0"])
-        assert f"| {drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] |" in rows[
-            SCORECARD_ATTACKS[attack]]
+        row = rows[SCORECARD_ATTACKS[attack]]
+        assert f"| {drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] |" in row
+        asked = "gradients" if attack in WHITE_BOX else f"{sweep['1.0']['queries_per_step']:g}"
+        assert row.split(" | ")[4] == asked
+    per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in sensory["attacks"].items()}
+    assert per_step["spsa"] == 1 + 1 * (2 * 2 + 1) and per_step["random"] == per_step["transfer"] == 0
+    assert per_step["aril_a_search"] == per_step["aril_a"] + 9 and sensory["clean"]["queries"] == 0
 
 
 def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_policy(small_card):
@@ -286,3 +294,27 @@ def test_an_env_without_bundled_adversaries_is_scored_without_a_zoo(tmp_path, mo
     assert {arg.split(":=", 1)[1] for arg in command.split() if arg.startswith("init:=")} <= {
         str(tmp_path / "card" / "adversary-sensory.pt")}
     assert "no bundled adversary for a zoo" in page.read_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("attack", ["spsa", "aril_a_search"])
+def test_a_cells_questions_are_counted_alike_on_the_engine_and_through_the_graph(attack, tmp_path):
+    """A cell's queries on the engine are its attack's count of the rows it asked; through the graph, the probes its
+    run's log holds, each answered by the policy node. The same cell gives the same figures both ways, questions
+    included: SPSA^k 1 + k (2 samples + 1) a step, ARIL-A with search its input action and the 8 + 1 candidates."""
+    from aril_ros.adversary import load_adversary
+    from aril_ros.cell_runner import CellRunner
+    from aril_ros.registry import DATA_DIR
+    from aril_ros.verdict import SEARCH
+
+    adversary = DATA_DIR / "adversary" / "Swimmer-v5-sensory.pt"
+    settings = ({"attack": "spsa", "k": 1, "samples": 2} if attack == "spsa" else
+                {"attack": "aril_a", "attack_file": str(adversary), "rescale": True, "search": SEARCH})
+    cell = EvalConfig(env="Swimmer-v5", policy="dagger", mode="sensory", eps=0.3, episodes=2, seed=4000, horizon=20,
+                      **settings)
+    [on_engine], [through_graph] = (CellRunner(via, workers=1, address="").run([cell], log=lambda *a, **k: None)
+                                    for via in ("engine", "graph"))
+    assert through_graph == on_engine
+    per_step = 1 + 1 * (2 * 2 + 1) if attack == "spsa" else int(load_adversary(adversary).takes_actions) + SEARCH + 1
+    assert on_engine["queries_per_step"] == per_step == (6 if attack == "spsa" else 10)
+    assert on_engine["queries"] == per_step * sum(e["steps"] for e in on_engine["episodes"]) == per_step * 40

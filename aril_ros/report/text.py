@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..envs import layout_of
-from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS
+from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS, WHITE_BOX
 from .compute import compute_lines
 from .paper import PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
 from .stats import paired_drop, worst_attack
@@ -224,16 +224,18 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
 
 
 HOW_ATTACKS_ASK = (
-    "How each attack uses the policy (none takes its weights but the white-box ones, which a file alone allows):",
+    "How each attack uses the policy (none takes its weights but the white-box ones, which a file alone allows; "
+    "the tables' questions per step are those each attack put to it, counted as they were asked, besides the "
+    "step's own action):",
     "- random: not at all;",
-    "- SPSA^k: asks it about the points of its gradient estimate (the queries per step in the budget);",
+    "- SPSA^k: asks it about the points of its gradient estimate;",
     "- FGSM^k on a surrogate (transfer): FGSM^k on a copy of the policy fitted to its answers (the surrogate: "
     "its questions and held-out fidelity below); it asks the policy nothing while it attacks;",
     "- ARIL-A from the zoo: the bundled adversary (none trained against this very file) that took the most return "
-    "from the surrogate on screening episodes; one question per step (the policy's action, an input);",
-    "- ARIL-A: trained against the surrogate, from the zoo's adversary; one question per step;",
-    "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step, the most "
-    "damaging applied;",
+    "from the surrogate on screening episodes; one question per step when the policy's action is an input of it;",
+    "- ARIL-A: trained against the surrogate, from the zoo's adversary; asks as the zoo's;",
+    "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
+    "ARIL-A's own question, the most damaging applied;",
     "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
 
 
@@ -269,14 +271,15 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
                   f"**Worst case: {SCORECARD_ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
                   f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
                   f"(clean {r['clean']['mean_return']:.1f}).", "",
-                  "| attack | return at eps | drop at eps [95%] | expert loss | return at " +
-                  ", ".join(f"{s:g}x" for s in card["scales"]) + " eps |", "|---|---|---|---|---|",
-                  f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | |"]
+                  "| attack | return at eps | drop at eps [95%] | expert loss | questions per step | return at " +
+                  ", ".join(f"{s:g}x" for s in card["scales"]) + " eps |", "|---|---|---|---|---|---|",
+                  f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | | |"]
         for attack, sweep in r["attacks"].items():
             at = sweep[1.0]
             drop = paired_drop(r["clean"], at)
             lines.append(f"| {SCORECARD_ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
                          f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
+                         f"{'gradients' if attack in WHITE_BOX else format(at['queries_per_step'], 'g')} | "
                          + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in card["scales"]) + " |")
         lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
     return "\n".join(lines)
