@@ -151,6 +151,8 @@ class ScorecardConfig:
                        f"{GRAPH_RUN_CPUS} CPUs in a ROS domain of its own); default: graph for policy:=external, which "
                        "only the graph reaches, else engine")
     domain: str = arg("", "policy:=external: the ROS_DOMAIN_ID your node runs in, which every run joins")
+    leave_out: str = arg("", "policy:=external: a policy file or bundled name the node serves, whose adversaries the zoo "
+                             "leaves out (as it does for a file scored itself); unset, the zoo keeps every one")
     keep_logs: bool = arg(False, "through the graph: keep each graph run's log under <out>/logs/")
     seed: int = arg(seeds.SCORECARD, "env seed of the first episode (every cell runs the same episodes)",
                     low=0, high=2**31 - 1)
@@ -235,7 +237,12 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
                              f"domain:={cfg.domain or '(unset)'}")
         checked_domain(cfg.domain)
         plugins.load("aril_ros.victims", "ros")  # the ROS side must be installed: says so if it is not
+        if cfg.leave_out:
+            resolve_policy(cfg.leave_out, cfg.env, modes[0])
     else:
+        if cfg.leave_out:
+            raise ValueError(f"leave_out:={cfg.leave_out} is for policy:=external (a file scored itself leaves out the "
+                             "adversaries trained against it already)")
         resolve_policy(cfg.policy, cfg.env, modes[0])  # a missing or mismatched policy is reported first
     if via_of(cfg) == "graph":
         plugins.load("aril_ros.collectors", "graph")
@@ -280,7 +287,8 @@ def pipeline_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, ou
     log(f"[scorecard] {mode}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
         f"{budget.adversary_steps:,} steps against the surrogate (eps {eps:g})")
     return black_box_attacks(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps, cfg.expert,
-                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines)
+                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines,
+                             policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "")
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:

@@ -65,15 +65,18 @@ class BlackBoxAttacks:
 
 
 def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-                      domain: str = "", log=print, horizon: int = HORIZON, refines: int = 1) -> BlackBoxAttacks:
+                      domain: str = "", log=print, horizon: int = HORIZON, refines: int = 1,
+                      leave_out: str = "") -> BlackBoxAttacks:
     """The pipeline for the policy ``victim_name`` (a file, a bundled name, or ``ros``: an external node in
     ``domain``) in ``mode`` at ``eps``, on episodes of ``horizon`` steps (the scored ones'); ARIL-A trained ``steps``
-    steps in all, the surrogate refined ``refines`` times. Its record, ``pipeline-<mode>.json``, lets a rerun for the
+    steps in all, the surrogate refined ``refines`` times; the zoo leaves out the adversaries trained against
+    ``victim_name``'s file, or for an external node against ``leave_out``'s (the file it serves, when it is one of
+    ours: the verdict of a policy the testbed has never seen). Its record, ``pipeline-<mode>.json``, lets a rerun for the
     same policy, eps, horizon, steps and refines find the files and make nothing."""
     surrogate, adversary = folder / f"surrogate-{mode}.pt", folder / f"adversary-{mode}.pt"
     record = folder / f"pipeline-{mode}.json"
     wanted = {"victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon, "adversary_steps": steps,
-              "refines": refines}
+              "refines": refines, "leave_out": leave_out}
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {surrogate} and {adversary}")
@@ -84,8 +87,8 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
     with answering(victim_name, env_id, mode, domain) as victim:
         questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, rng)
         fit_answers(questions, answers, env_id, cfg, {**wanted, "round": 0, "queries": victim.asked}, surrogate, log)
-        screened = screen_zoo(zoo_members(env_id, mode, victim_digest(victim_name, env_id, mode)), surrogate, env_id,
-                              mode, eps, expert, horizon)
+        left_out = victim_digest(leave_out or victim_name, env_id, mode)
+        screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert, horizon)
         zoo = Path(screened[0][1]) if screened else None
         log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(zoo)} "
                                      f"({len(screened)} screened, mean return {screened[0][0]:.1f})" if zoo else

@@ -200,3 +200,32 @@ def test_aril_fit_surrogate_writes_the_file_attack_transfer_runs_on(tmp_path, ca
     assert main(["fit-surrogate", "mode:=clean"]) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         "aril fit-surrogate: error: unknown mode 'clean'; choose one of sensory, physical")
+
+
+def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp_path):
+    """An external node has no file to compare: every bundled adversary stays in its zoo, unless ``leave_out`` names
+    the file it serves; then it leaves out the same ones as that file scored itself."""
+    own = victim_digest("dagger", ENV, MODE)
+    assert verdict.victim_digest("ros", ENV, MODE) is None
+    assert len(zoo_members(ENV, MODE, None)) == len(zoo_members(ENV, MODE, own)) + 3
+    folder = tmp_path / "as-node"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(verdict, "answering", lambda name, env, mode, domain: AsNode(name))
+        made = black_box_attacks("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
+                                 leave_out="dagger")
+    screened = {member for _, member in made.screened}
+    assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own)}
+
+
+class AsNode:
+    """The bundled DAgger learner's answers standing in for a node (``answering``'s context for victim ros)."""
+
+    def __init__(self, name):
+        assert name == "ros"
+        self.box = AnswersOnly(resolve_policy("dagger", ENV))
+
+    def __enter__(self):
+        return self.box
+
+    def __exit__(self, *exc):
+        return False
