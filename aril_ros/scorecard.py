@@ -104,6 +104,9 @@ class Budget:
     """the eps sweep, as multiples of the mode's eps (the default of ``scales:=``)"""
     refines: int
     """times the surrogate is asked again where ARIL-A leads the policy, and fitted again (ARIL-A's steps split)"""
+    black_box: dict | None = None
+    """per mode the black-box rows it scores unless ``attacks:=`` names others (None: every one); the white-box rows
+    of a file are scored beside them"""
 
     @property
     def spsa_queries(self) -> int:
@@ -115,16 +118,20 @@ class Budget:
                 f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
 
 
-# quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
-# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8) and twice the paper's 1M steps
-BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1",
-                           refines=1),
-           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
-                          scales="0.25,0.5,1,2", refines=3)}
 SCORED_ATTACKS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
+QUICK_ROWS = {"sensory": ("transfer", "zoo", "aril_a_search"), "physical": ("zoo", "aril_a", "aril_a_search")}
+"""The quick budget's black-box rows, so that an external node's quick verdict takes minutes: random and SPSA^k (at 6
+questions a step) were never the worst on the verdict benchmark's cells (results/verdict.md), transfer never in
+physical mode (results/aril_a_tuning.md, issue 38)."""
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""
+# quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
+# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8) and twice the paper's 1M steps
+BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1",
+                           refines=1, black_box=QUICK_ROWS),
+           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
+                          scales="0.25,0.5,1,2", refines=3)}
 VIAS = ("engine", "graph")
 
 
@@ -187,8 +194,7 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         clean = dict(zip(tested, cleans))
         made = {mode: pipeline_for(cfg, mode, eps[mode], budget, out, log)
                 for mode in modes} if set(attacks) & set(PIPELINE_ATTACKS) else {}
-        rows = {mode: [a for a in attacks if not (a == "zoo" and mode in made and made[mode].zoo is None)]
-                for mode in modes}  # an env with no bundled adversary (a new robot) has no zoo
+        rows = {mode: rows_of(cfg, budget, attacks, mode, made.get(mode)) for mode in modes}
         plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode))
                 for mode in modes for attack in rows[mode] for scale in scales]
         cells = iter(runner.run(plan, log))
@@ -212,6 +218,15 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         f"{mode} worst {SCORECARD_ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%"
         for mode, r in results.items()))
     return page
+
+
+def rows_of(cfg: ScorecardConfig, budget: Budget, attacks: list[str], mode: str, made: BlackBoxAttacks | None
+            ) -> list[str]:
+    """The attacks scored in ``mode``: those named by ``attacks:=``, else the budget's black-box rows of the mode and
+    the white-box ones that apply; never the zoo of an env with no bundled adversary (a new robot)."""
+    chosen = [a for a in attacks if cfg.attacks or budget.black_box is None or a in WHITE_BOX
+              or a in budget.black_box[mode]]
+    return [a for a in chosen if not (a == "zoo" and made is not None and made.zoo is None)]
 
 
 def via_of(cfg: ScorecardConfig) -> str:
