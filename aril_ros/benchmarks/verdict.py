@@ -95,12 +95,13 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
 def table(rows: list[dict], budgets: list[str]) -> str:
     """The benchmark's table: per cell the black-box drop and ratio per budget, the reference and the minutes."""
     head = "| env | policy | mode | clean | " + " | ".join(
-        f"{b} black-box drop | {b} ratio | {b} min" for b in budgets) + " | reference drop |"
+        f"{b} black-box drop [95%] | {b} ratio | {b} min" for b in budgets) + " | reference drop |"
     lines = [head, "|" + "---|" * (5 + 3 * len(budgets))]
     for cell in rows:
         first = cell[budgets[0]]
         ref = first["reference"]
-        parts = [f"{c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}) | "
+        parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
+                 f"({c['black_box_worst']}) | "
                  f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f} | {c['minutes']:.1f}" for c in
                  (cell[b] for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
@@ -113,7 +114,7 @@ def main(argv=None) -> None:
     if cfg is None:
         return
     budgets = comma_list(cfg.budgets)
-    rows = []
+    out, rows = Path(cfg.out), []
     for env in comma_list(cfg.envs):
         for policy in comma_list(cfg.policies):
             for mode in comma_list(cfg.modes):
@@ -124,9 +125,10 @@ def main(argv=None) -> None:
                     f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}, ratio "
                     f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f}, {c['minutes']:.1f} min)"
                     for b, c in cell.items()), flush=True)
-    out = Path(cfg.out)
-    (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1) + "\n")
-    (out / "verdict.md").write_text(table(rows, budgets))
+                # the table so far after every cell: a run stopped midway leaves what it measured
+                (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1)
+                                                  + "\n")
+                (out / "verdict.md").write_text(table(rows, budgets))
     print(table(rows, budgets))
 
 
