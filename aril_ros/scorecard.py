@@ -123,7 +123,7 @@ SCORED_ATTACKS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search"
 PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
 QUICK_ROWS = {"sensory": ("transfer", "zoo", "aril_a_search"), "physical": ("zoo", "aril_a", "aril_a_search")}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes: random and SPSA^k (at 6
-questions a step) were never the worst on the verdict benchmark's cells (results/verdict.md), transfer never in
+questions a step) were never the worst on the verdict benchmark's cells (results/verdict/verdict.md), transfer never in
 physical mode (results/aril_a_tuning.md, issue 38)."""
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
