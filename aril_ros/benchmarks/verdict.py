@@ -25,6 +25,7 @@ from pathlib import Path
 from .. import seeds
 from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
+from ..provenance import portable
 from ..registry import ATTACKED_MODES, adversary_path
 from ..report.stats import paired_drop
 from ..scorecard import BUDGETS, ScorecardConfig, scorecard
@@ -56,7 +57,8 @@ def reference(env: str, policy: str, mode: str, episodes: int, card: dict) -> di
     drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]),
              "bundled_aril_a": paired_drop(result["clean"], learned_cell)}
     strongest = min(drops, key=lambda name: drops[name]["drop_pct"])  # a drop is negative: the lowest is strongest
-    return {"attack": strongest, "file": str(adversary), "drops": drops, "drop_pct": drops[strongest]["drop_pct"]}
+    return {"attack": strongest, "file": portable(str(adversary)), "drops": drops,
+            "drop_pct": drops[strongest]["drop_pct"]}
 
 
 def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict:
