@@ -52,12 +52,13 @@ LONG = os.environ.get("ARIL_LONG_TESTS") == "1"
                                               "ARIL_LONG_TESTS=1 python run_tests.py -k quick_budget")),
 ], ids=["shortened", "unshortened"])
 def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_path):
-    """The node as the doc gives it, scored by ``aril scorecard policy:=external budget:=quick``: both modes, every
-    black-box attack through the graph (a surrogate fitted to its answers, ARIL-A trained against that surrogate),
-    each cell on the same seeds; SPSA^k asks the budget's queries per step as probes, and the steps are the node's
-    answers to the observations stepped on. The default suite runs the quick budget with fewer and shorter episodes
+    """The node as the doc gives it, scored by ``aril scorecard policy:=external budget:=quick``: both modes, the
+    quick budget's black-box rows through the graph (a surrogate fitted to its answers, ARIL-A trained against that
+    surrogate), each cell on the same seeds; ARIL-A + search asks its questions per step as probes, and the steps are
+    the node's answers to the observations stepped on. The default suite runs the quick budget with fewer and shorter episodes
     and a shorter adversary training."""
-    from aril_ros.scorecard import BUDGETS, ScorecardConfig, scorecard
+    from aril_ros.scorecard import BUDGETS, QUICK_ROWS, ScorecardConfig, scorecard
+    from aril_ros.verdict import SEARCH
 
     budget = BUDGETS["quick"]
     domain = free_domain()
@@ -74,13 +75,13 @@ def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_p
     seeds = [card["settings"]["seed"] + i for i in range(episodes)]
     assert list(card["modes"]) == ["sensory", "physical"]
     for mode, result in card["modes"].items():
-        assert set(result["attacks"]) == {"random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search"}
+        assert list(result["attacks"]) == list(QUICK_ROWS[mode])  # the quick budget's black-box rows
         for attack, sweep in result["attacks"].items():
             for cell in sweep.values():
                 assert [e["env_seed"] for e in cell["episodes"]] == seeds
                 assert {e["steps"] for e in cell["episodes"]} == {horizon}
-        run = read_run(tmp_path / "card" / "logs" / f"{mode}-spsa-{result['eps']:g}.mcap")
-        assert set(run.probes_per_step) == {budget.spsa_queries}
+        run = read_run(tmp_path / "card" / "logs" / f"{mode}-aril_a-adversary-{mode}-search{SEARCH}-{result['eps']:g}.mcap")
+        assert set(run.probes_per_step) == {result["attacks"]["aril_a_search"]["1.0"]["queries_per_step"]} == {10}
         np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :6]))  # no probe's answer was stepped on
         assert (tmp_path / "card" / f"sweep-{mode}.png").stat().st_size > 0
         at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}
@@ -309,6 +310,7 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     try:
         page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env=env_id, modes="sensory,physical",
                                          episodes=2, horizon=20, adversary_steps=2048, scales="1",
+                                         attacks=",".join(("random", "spsa", *PIPELINE_ATTACKS)),
                                          out=str(tmp_path / "card")), log=lambda *a, **k: None)
     finally:
         stop(node)

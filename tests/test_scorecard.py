@@ -19,7 +19,8 @@ from aril_ros.scorecard import PIPELINE_ATTACKS, SCORED_ATTACKS, ScorecardConfig
 from aril_ros.verdict import relative, victim_digest, zoo_members
 
 
-SMALL = dict(env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096, horizon=25, scales="2,1")
+SMALL = dict(env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096, horizon=25, scales="2,1",
+             attacks=",".join(SCORED_ATTACKS))  # every row, not the quick budget's few
 
 
 @pytest.fixture(scope="module")
@@ -227,8 +228,8 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
                              "-p", "policy:=dagger", "-r", "__node:=my_policy"], env=dict(os.environ))
     try:
         lines = []
-        scorecard(ScorecardConfig(policy="external", domain=os.environ["ROS_DOMAIN_ID"], attacks="aril_a",
-                                  out=str(tmp_path / "node"), **SMALL), log=lambda line, **_: lines.append(line))
+        scorecard(ScorecardConfig(policy="external", domain=os.environ["ROS_DOMAIN_ID"], out=str(tmp_path / "node"),
+                                  **{**SMALL, "attacks": "aril_a"}), log=lambda line, **_: lines.append(line))
     finally:
         node.send_signal(signal.SIGINT)
         node.wait(timeout=20)
@@ -267,7 +268,7 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     cluster.add_node(num_cpus=GRAPH_RUN_CPUS)
     try:
         scorecard(ScorecardConfig(policy=str(mine), via="graph", keep_logs=True, address=cluster.address,
-                                  attacks="fgsm", out=str(tmp_path / "card"), **SMALL), log=lambda *a, **k: None)
+                                  out=str(tmp_path / "card"), **{**SMALL, "attacks": "fgsm"}), log=lambda *a, **k: None)
     finally:
         cluster.shutdown()
     by_graph, by_engine = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"]
