@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -324,10 +323,7 @@ def policy_in(policy: str, env_id: str, mode: str) -> str:
     """The policy under test in attacked ``mode``, as a run that may be in another mode (the clean one, the
     adversary trainer's) must be told it: the policy as typed, and for a bundled name trained per mode, which such a
     run could not resolve, its file for ``mode``, relative to here when it can be."""
-    if policy not in PER_MODE_POLICIES:
-        return policy
-    path = bundled_file(policy, env_id, mode)
-    return os.path.relpath(path) if path.is_relative_to(Path.cwd()) else str(path)
+    return relative(bundled_file(policy, env_id, mode)) if policy in PER_MODE_POLICIES else policy
 
 
 def worst_case(clean: dict, cells: dict) -> dict:

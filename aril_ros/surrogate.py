@@ -104,12 +104,13 @@ def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: in
     running, seen_rows, answer_rows = np.arange(episodes), [], []
     try:
         while running.size:
-            delta = np.zeros_like(obs[running])
             if attack is not None:
                 delta = attack.perturb(obs[running], [rngs[e] for e in running])
-            for row, e in enumerate(running):
-                if attack is None and e % 2:
-                    delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
+            else:
+                delta = np.zeros_like(obs[running])
+                for row, e in enumerate(running):
+                    if e % 2:
+                        delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
             seen = sims.seen(mode, obs[running], delta, running)
             seen_rows.append(seen)
             answer_rows.append(victim.act(seen))

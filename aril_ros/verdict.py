@@ -23,7 +23,6 @@ question is a message to the node and back.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from contextlib import contextmanager
@@ -43,10 +42,11 @@ from .protocol import ros_domain
 from .registry import ATTACKED_MODES, DATA_DIR, DEFAULT_ENV, DEFENSES, MAX_EPS, bundled_file, calibrated_eps, check_name
 from .rollout import RolloutEngine
 from .surrogate import SurrogateConfig, fit_answers, fit_surrogate, gather
+from .sweep import digest_of
 
 SEARCH = 8
 """Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
-DAgger sensory 8 took 49% of the return where none took 39% (results/tuning-record.md, issue 38)."""
+DAgger sensory 8 took 49% of the return where none took 39% (results/aril_a_tuning.md, issue 38)."""
 SCREEN_EPISODES = 3
 """Episodes per zoo member in the screening (against the surrogate, so they cost no question to the policy)."""
 ZOO_FOLDERS = (DATA_DIR / "adversary", DATA_DIR / "defense-adversary")
@@ -82,13 +82,14 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
         log(f"[verdict] {mode}: reusing {surrogate} and {adversary}")
         return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), adversary,
                                [tuple(s) for s in made["zoo_screened"]])
-    layout, expert_policy, rng = layout_of(env_id), resolve_policy(expert, env_id), np.random.default_rng(0)
     cfg = SurrogateConfig()
+    layout, expert_policy, rng = layout_of(env_id), resolve_policy(expert, env_id), np.random.default_rng(cfg.seed)
     with answering(victim_name, env_id, mode, domain) as victim:
         questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, rng)
         fit_answers(questions, answers, env_id, cfg, {**wanted, "round": 0, "queries": victim.asked}, surrogate, log)
         left_out = victim_digest(leave_out or victim_name, env_id, mode)
-        screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert, horizon)
+        screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert_policy,
+                              horizon)
         zoo = Path(screened[0][1]) if screened else None
         log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(zoo)} "
                                      f"({len(screened)} screened, mean return {screened[0][0]:.1f})" if zoo else
@@ -108,7 +109,7 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
                             init=str(start) if start else "")
             start = adversary
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened,
-                                  "files": {path.name: digest(path) for path in (surrogate, adversary)}},
+                                  "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
     return BlackBoxAttacks(surrogate, zoo, adversary, screened)
 
@@ -122,13 +123,9 @@ def made_before(record: Path, wanted: dict) -> dict | None:
     if any(made.get(key) != value for key, value in wanted.items()):
         return None
     files = {name: record.parent / name for name in made["files"]}
-    if not all(path.exists() and digest(path) == made["files"][name] for name, path in files.items()):
+    if not all(path.exists() and digest_of(path.read_bytes()) == made["files"][name] for name, path in files.items()):
         return None
     return made
-
-
-def digest(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 @contextmanager
@@ -163,7 +160,7 @@ def victim_digest(victim_name: str, env_id: str, mode: str) -> str | None:
     """The SHA-256 of the policy file behind ``victim_name`` (None for an external node: no file to compare)."""
     if victim_name == "ros":
         return None
-    return hashlib.sha256(policy_file(victim_name, env_id, mode).read_bytes()).hexdigest()
+    return digest_of(policy_file(victim_name, env_id, mode).read_bytes())
 
 
 def zoo_members(env_id: str, mode: str, exclude_sha256: str | None) -> list[Path]:
@@ -190,15 +187,15 @@ def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
         except ValueError:  # no such learner for this env
             continue
         if load_policy(learner, env_id).meta.provenance == made.get("victim_provenance"):
-            return hashlib.sha256(learner.read_bytes()).hexdigest()
+            return digest_of(learner.read_bytes())
     return None
 
 
 def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
-               expert: str, horizon: int = HORIZON) -> list[tuple[float, str]]:
+               expert_policy, horizon: int = HORIZON) -> list[tuple[float, str]]:
     """Step 2: each member's mean return against the surrogate (scaled to ``eps``) over episodes of ``horizon``
-    steps, lowest first (none for no member)."""
-    policy, expert_policy = load_policy(surrogate, env_id), resolve_policy(expert, env_id)
+    steps, labelled by ``expert_policy``, lowest first (none for no member)."""
+    policy = load_policy(surrogate, env_id)
     scores = []
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
