@@ -229,3 +229,42 @@ class AsNode:
 
     def __exit__(self, *exc):
         return False
+
+
+def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None) -> dict:
+    """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop and the reference."""
+    from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
+    drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
+    figures = {"env": "HalfCheetah-v5", "policy": "dagger", "mode": mode, "budget": budget, "minutes": 1.0,
+               "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
+               "reference": {"attack": "fgsm_k", "drop_pct": -50.0}}
+    return figures if episodes is None else {**figures, "episodes": episodes}
+
+
+def test_benchmark_judges_a_cell_by_the_budget_rows_of_today():
+    """The budget's verdict is the worst of the rows it scores, read again from every row's drop: a row the quick
+    budget does not score (random here) is never its verdict however strong, but stays the worst of every row."""
+    from aril_ros.benchmarks.verdict import judged
+    from aril_ros.scorecard import BUDGETS
+    quick_rows = BUDGETS["quick"].black_box["physical"]
+    strongest_scored = quick_rows[-1]
+    cell = judged(bench_cell({"random": -90.0, strongest_scored: -60.0}))
+    assert cell["budget_rows"] == list(quick_rows)
+    assert (cell["black_box_worst"], cell["black_box_drop_pct"]) == (strongest_scored, -60.0)
+    assert cell["black_box_ci95_pct"] == [-61.0, -59.0]
+    assert (cell["worst_of_every_row"], cell["worst_of_every_row_drop_pct"]) == ("random", -90.0)
+    full = judged(bench_cell({"random": -90.0, strongest_scored: -60.0}, budget="full"))
+    assert full["black_box_worst"] == "random"  # the full budget scores every row
+
+
+def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
+    """A resumed cell scored on other episodes than the run asks for is refused by name, not mixed into the table."""
+    import json
+    from aril_ros.benchmarks.verdict import VerdictBenchConfig, score_cell
+    folder = tmp_path / "cells" / "HalfCheetah-v5-dagger-physical-quick"
+    folder.mkdir(parents=True)
+    (folder / "cell.json").write_text(json.dumps(bench_cell({}, episodes=20)))
+    cfg = VerdictBenchConfig(out=str(tmp_path))
+    assert score_cell(cfg, "HalfCheetah-v5", "dagger", "physical", "quick")["episodes"] == 20
+    with pytest.raises(ValueError, match="cell.json was scored on 20 episodes, not 30"):
+        score_cell(VerdictBenchConfig(out=str(tmp_path), episodes=30), "HalfCheetah-v5", "dagger", "physical", "quick")

@@ -31,6 +31,10 @@ from ..report.stats import paired_drop
 from ..scorecard import BUDGETS, ScorecardConfig, scorecard
 
 BLACK_BOX_ROWS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search")
+DEFAULT_EPISODES = 20
+EPISODES = {"Ant-v5": 50}
+"""Episodes per cell where 20 leave the verdict's interval wider than its drop: Ant's clean episodes range from a
+dozen steps to the full horizon (issue 38: at 10 episodes its drops swung by 20-70 points)."""
 
 
 @dataclass
@@ -41,18 +45,28 @@ class VerdictBenchConfig:
     policies: str = arg("dagger,bc,dr,aril", "comma-separated bundled learners (each has bundled ARIL-As against it)")
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attacked modes")
     budgets: str = arg("quick,full", f"comma-separated scorecard budgets ({', '.join(BUDGETS)})")
-    episodes: int = arg(20, "episodes per cell (paired: the same env seeds in every row)", low=2, high=100_000)
+    episodes: int = arg(0, "episodes per cell (paired: the same env seeds in every row); 0: the env's of "
+                           f"EPISODES ({', '.join(f'{e} {n}' for e, n in EPISODES.items())}; else {DEFAULT_EPISODES})",
+                        low=0, high=100_000)
+    seed: int = arg(seeds.SCORECARD, "env seed of every cell's first episode: the scorecard's (the verdict), or a "
+                                     f"screening one ({seeds.SCREENING}..) to choose the quick budget's rows on",
+                    low=0, high=2**31 - 1)
     workers: int = arg(2, "CPUs of the local Ray each scorecard's cells run on", low=1, high=1024)
     out: str = arg("runs/verdict", "the folder of the cells and the table")
 
 
-def reference(env: str, policy: str, mode: str, episodes: int, card: dict) -> dict:
+def episodes_of(cfg: VerdictBenchConfig, env: str) -> int:
+    """Episodes per cell of ``env``: ``episodes:=``, else the env's own count."""
+    return cfg.episodes or EPISODES.get(env, DEFAULT_EPISODES)
+
+
+def reference(env: str, policy: str, mode: str, episodes: int, seed: int, card: dict) -> dict:
     """The reference of a cell: the stronger of white-box FGSM^k (from the scorecard's cells) and the bundled ARIL-A
     trained against this learner, each with its paired drop from the scorecard's clean cell."""
     result = card["modes"][mode]
     adversary = adversary_path(env, mode, policy)
     learned = evaluate(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
-                                  episodes=episodes, seed=seeds.SCORECARD))
+                                  episodes=episodes, seed=seed))
     learned_cell = {"episodes": [{"return": r} for r in learned["returns"]]}
     drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]),
              "bundled_aril_a": paired_drop(result["clean"], learned_cell)}
@@ -63,10 +77,15 @@ def reference(env: str, policy: str, mode: str, episodes: int, card: dict) -> di
 
 def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict:
     """One scorecard of ``policy`` in ``mode`` at ``budget`` (its figures, worst black-box drop and minutes)."""
-    folder = Path(cfg.out) / "cells" / f"{env}-{policy}-{mode}-{budget}"
+    seeded = "" if cfg.seed == seeds.SCORECARD else f"-seed{cfg.seed}"
+    folder = Path(cfg.out) / "cells" / f"{env}-{policy}-{mode}-{budget}{seeded}"
     done = folder / "cell.json"
     if done.exists():
-        return json.loads(done.read_text())
+        figures = json.loads(done.read_text())
+        if figures.get("episodes", DEFAULT_EPISODES) != episodes_of(cfg, env):
+            raise ValueError(f"{done} was scored on {figures.get('episodes', DEFAULT_EPISODES)} episodes, not "
+                             f"{episodes_of(cfg, env)}: give another out:= (a table's cells share their episodes)")
+        return judged(figures)
     started = time.time()
     attacks = ",".join((*BLACK_BOX_ROWS, "fgsm_k"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -74,24 +93,32 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
         def log(*parts, **_):  # every line with the seconds since the cell began: where its minutes went
             print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
 
-        scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget, episodes=cfg.episodes,
-                                  scales="1", attacks=attacks, workers=cfg.workers, out=str(folder)), log=log)
+        scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget,
+                                  episodes=episodes_of(cfg, env), seed=cfg.seed, scales="1", attacks=attacks,
+                                  workers=cfg.workers, out=str(folder)), log=log)
     minutes = (time.time() - started) / 60
     card = json.loads((folder / "scorecard.json").read_text())
     result = card["modes"][mode]
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
-    # the budget's verdict: the worst of the rows it scores by default (every row is run, and kept, to show which)
-    rows = BUDGETS[budget].black_box[mode] if BUDGETS[budget].black_box else BLACK_BOX_ROWS
-    worst = min(rows, key=lambda row: drops[row]["drop_pct"])
-    worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
-    figures = {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
-               "clean": result["clean"]["mean_return"], "drops": drops, "budget_rows": list(rows),
-               "black_box_worst": worst, "black_box_drop_pct": drops[worst]["drop_pct"],
-               "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"],
-               "black_box_ci95_pct": drops[worst]["ci95_pct"],
-               "reference": reference(env, policy, mode, cfg.episodes, card)}
+    figures = judged({"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
+                      "clean": result["clean"]["mean_return"], "drops": drops,
+                      "episodes": episodes_of(cfg, env), "seed": cfg.seed,
+                      "reference": reference(env, policy, mode, episodes_of(cfg, env), cfg.seed, card)})
     done.write_text(json.dumps(figures, indent=1) + "\n")
     return figures
+
+
+def judged(figures: dict) -> dict:
+    """A cell's figures with its budget's verdict: the worst of the rows the budget scores by default (every row is
+    run, and kept, to show which), judged again on every read, so a cell scored before the budget's rows changed
+    gives the verdict of today's rows; and the worst of every row beside it."""
+    drops, budget = figures["drops"], BUDGETS[figures["budget"]]
+    rows = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
+    worst = min(rows, key=lambda row: drops[row]["drop_pct"])
+    worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
+    return {**figures, "budget_rows": list(rows), "black_box_worst": worst,
+            "black_box_drop_pct": drops[worst]["drop_pct"], "black_box_ci95_pct": drops[worst]["ci95_pct"],
+            "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
 
 
 def table(rows: list[dict], budgets: list[str]) -> str:
@@ -115,6 +142,8 @@ def main(argv=None) -> None:
     cfg = module_config(VerdictBenchConfig, "python -m aril_ros.benchmarks.verdict", __doc__, argv)
     if cfg is None:
         return
+    if cfg.episodes == 1:
+        raise ValueError("episodes:=1: a paired interval needs at least 2 episodes per cell")
     budgets = comma_list(cfg.budgets)
     out, rows = Path(cfg.out), []
     for env in comma_list(cfg.envs):
