@@ -319,3 +319,13 @@ def test_a_cells_questions_are_counted_alike_on_the_engine_and_through_the_graph
     per_step = 1 + 1 * (2 * 2 + 1) if attack == "spsa" else int(load_adversary(adversary).takes_actions) + SEARCH + 1
     assert on_engine["queries_per_step"] == per_step == (6 if attack == "spsa" else 10)
     assert on_engine["queries"] == per_step * sum(e["steps"] for e in on_engine["episodes"]) == per_step * 40
+
+
+def test_page_warns_when_the_worst_cases_interval_is_as_wide_as_its_drop():
+    """A verdict whose 95% interval is as wide as the drop it reports (too few episodes for the env) says so and how
+    to fix it; a tight one says nothing."""
+    from aril_ros.report.text import too_few_episodes
+    assert too_few_episodes({"drop_pct": -30.0, "ci95_pct": [-40.0, -20.0]}, 10) == []
+    warning = too_few_episodes({"drop_pct": -20.0, "ci95_pct": [-45.0, 5.0]}, 10)
+    assert "10 episodes do not pin this verdict down" in warning[0] and "episodes:=" in warning[0]
+    assert too_few_episodes({"drop_pct": -10.0, "ci95_pct": [-15.0, -5.0]}, 10)  # width 10 = |drop|: not narrower

@@ -251,6 +251,16 @@ def pipeline_lines(mode_result: dict) -> list[str]:
             + f"ARIL-A: `{mode_result['adversary']}`.", ""]
 
 
+def too_few_episodes(worst: dict, episodes: int) -> list[str]:
+    """A warning when the worst case's interval is as wide as the drop it reports (Ant's clean episodes swing from a
+    dozen steps to the horizon): the verdict needs more episodes; else nothing."""
+    low, high = worst["ci95_pct"]
+    if high - low < abs(worst["drop_pct"]):
+        return []
+    return [f"*The interval is as wide as the drop: {episodes} episodes do not pin this verdict down; score more "
+            "(`episodes:=`, say 50).*", ""]
+
+
 def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool) -> str:
     """A scorecard's page (``scorecard.md``) from what its ``scorecard.json`` holds (``card``, its scales and the
     sweeps' keys floats), the policy as typed, the budget as a sentence, and whether its cells were runs of the
@@ -271,6 +281,7 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
                   f"**Worst case: {SCORECARD_ATTACKS[worst['attack']]}, return {worst['return']:.1f}, "
                   f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]** "
                   f"(clean {r['clean']['mean_return']:.1f}).", "",
+                  *too_few_episodes(worst, episodes),
                   "| attack | return at eps | drop at eps [95%] | expert loss | questions per step | return at " +
                   ", ".join(f"{s:g}x" for s in card["scales"]) + " eps |", "|---|---|---|---|---|---|",
                   f"| clean | {r['clean']['mean_return']:.1f} | | {r['clean']['mean_expert_loss']:.4f} | | |"]
