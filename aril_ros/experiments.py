@@ -27,15 +27,20 @@ from .adversary import AdversaryConfig, load_adversary, ready_adversaries
 from .envs import HORIZON
 from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate_all
+from .policy import load_policy
 from .provenance import portable, stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
-                       bundled_file, calibrated_eps, user_calibration)
+                       bundled_file, calibrated_eps, surrogate_path, user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
+from .verdict import ready_surrogate
 
 SEARCH_ROW = "aril_a_search"
 """ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
-ATTACK_ROWS = ("none", *THREATS, SEARCH_ROW)
+TRANSFER_ROW = "transfer"
+"""FGSM^k on a surrogate fitted to the victim's answers (:func:`aril_ros.verdict.ready_surrogate`): black-box, and
+the one attack that asks the victim nothing while it runs."""
+ATTACK_ROWS = ("none", *THREATS, TRANSFER_ROW, SEARCH_ROW)
 """The rows of the attack tables: clean, then each attack."""
 ROW_NAMES = {**ATTACKS, SEARCH_ROW: "ARIL-A + search"}
 
@@ -204,21 +209,27 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     made = stamp("aril attack-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     rows_of = ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]
-    adversaries, jobs, wanted = {}, [], []
+    adversaries, surrogates, jobs, wanted = {}, {}, [], []
     for env in comma_list(cfg.envs):
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
-        # against the bundled learner the adversary is bundled too (attack:=aril_a by name); else under runs/
-        adversary = (adversary_path(env, cfg.mode) if cfg.policy == DEFAULT_POLICY
+        # against the bundled learner the adversary and the surrogate are bundled too (attack:=aril_a by name); else
+        # under runs/
+        own = cfg.policy == DEFAULT_POLICY
+        adversary = (adversary_path(env, cfg.mode) if own
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
         adversaries[env] = adversary
+        surrogate = (surrogate_path(env, cfg.mode) if own
+                     else Path(cfg.adversary_dir) / f"surrogate-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
+        surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
         wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                       steps=cfg.adversary_steps, out=str(adversary)))
         for row in rows_of:
             attack = "aril_a" if row == SEARCH_ROW else row
+            files = {"aril_a": adversary, TRANSFER_ROW: surrogates[env]}
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                           eps=0.0 if attack == "none" else eps, k=cfg.k,
-                                          attack_file=str(adversary) if attack == "aril_a" else "",
+                                          attack_file=str(files[attack]) if attack in files else "",
                                           search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
     with session(cfg.workers, cfg.address):  # one Ray for the trainings and the evaluations
@@ -240,6 +251,9 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                 cells[row]["queries_per_step"] = result["queries_per_step"]
             if attack == "aril_a":
                 cells[row]["adversary"] = load_adversary(adversary).meta["provenance"]
+            if attack == TRANSFER_ROW:
+                cells[row]["surrogate"] = {"file": portable(str(surrogates[env])),
+                                           **load_policy(surrogates[env], env).meta.provenance}
             log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[row]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
                 flush=True)
         fresh.append({"env": env, "cells": cells})
@@ -263,7 +277,8 @@ def attack_markdown(payload: dict) -> str:
     lines = [f"# {table} ({payload['mode']} attacks), Adversary rows — victim: {payload['victim']}", "",
              "Return, mean ± std over deterministic episodes, and the drop from clean; FGSM and FGSM^k are "
              "white-box (the victim's gradients), the others black-box: SPSA^k and ARIL-A + search query the "
-             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation. "
+             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation, FGSM^k "
+             "on a surrogate attacks a copy fitted to the victim's answers (its questions and fidelity in the JSON). "
              "Each cell's episodes, seeds, adversary and command are in the JSON.", "",
              "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs)
              + " | overall | queries/step |",

@@ -154,6 +154,12 @@ def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Pat
     return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
 
 
+def surrogate_path(env_id: str, mode: str) -> Path:
+    """Where the bundled surrogate of the bundled DAgger learner lives (whether or not it exists): the attack tables'
+    ``transfer`` row attacks it (``aril fit-surrogate`` makes one for any policy)."""
+    return DATA_DIR / "surrogate" / f"{env_id}-{mode}.pt"
+
+
 def user_calibration() -> Path:
     """The calibration ``aril calibrate-eps`` writes by default: the user's, beside their policies."""
     return user_data_dir() / CALIBRATION_NAME

@@ -230,6 +230,19 @@ class FitSurrogateConfig:
     out: str = arg("", "where to write it (default runs/surrogate-<env>-<mode>.pt)")
 
 
+def ready_surrogate(victim_name: str, env_id: str, mode: str, eps: float, out: Path, horizon: int = HORIZON,
+                    log=print) -> Path:
+    """``out``, the pipeline's first surrogate of ``victim_name`` (a file or bundled name) in ``mode`` at ``eps``:
+    reused when it was fitted to that victim at that eps and horizon, else fitted now."""
+    if out.exists():
+        made = load_policy(out, env_id).meta.provenance
+        if (made.get("victim"), made.get("mode"), made.get("eps"), made.get("horizon")) == (victim_name, mode, eps,
+                                                                                               horizon):
+            return out
+    with answering(victim_name, env_id, mode, "") as victim:
+        return fit_surrogate(victim, env_id, mode, eps, out, SurrogateConfig(), victim_name, log, horizon)
+
+
 def fit_surrogate_command(cfg: FitSurrogateConfig) -> Path:
     """``aril fit-surrogate``: the pipeline's first surrogate alone, for ``aril eval attack:=transfer
     attack_file:=<it>``."""

@@ -29,7 +29,7 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
                                            adversary_dir=str(tmp_path), out=str(tmp_path / "attacks"), **ONE), **QUIET)
     cells = table["rows"][0]["cells"]
-    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "aril_a_search"}
+    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "transfer", "aril_a_search"}
     assert cells["spsa"]["queries_per_step"] == 1 + 3 * (2 * 8 + 1)  # k:=3 iterations of 8 directions
     assert cells["aril_a_search"]["queries_per_step"] == 1 + 16 + 1  # its input action, 16 draws, the likeliest
     assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
@@ -41,6 +41,18 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     markdown = (tmp_path / "attacks.md").read_text()
     assert "| ARIL-A + search |" in markdown and "| 18 |" in markdown
     assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
+    # transfer: FGSM^k on a surrogate fitted to the victim's answers at the table's eps, which asks the victim nothing
+    surrogate = tmp_path / "surrogate-Swimmer-v5-sensory-victim.pt"
+    made = cells["transfer"]["surrogate"]
+    assert made["file"] == str(surrogate) and (made["victim"], made["eps"], made["horizon"]) == (str(victim), 0.5, 60)
+    assert made["queries"] > 0 and 0.0 < made["fidelity"]["r2"] <= 1.0
+    assert "queries_per_step" not in cells["transfer"] and "| FGSM^k on a surrogate |" in markdown
+    fitted = surrogate.stat().st_mtime_ns
+    attack_table(AttackTableConfig(envs="Swimmer-v5", mode="sensory", policy=str(victim), expert=str(expert),
+                                   calibration=str(tmp_path / "cal.json"), episodes=2, horizon=60, adversary_steps=2000,
+                                   k=3, search=0, adversary_dir=str(tmp_path), out=str(tmp_path / "again"), **ONE),
+                 **QUIET)
+    assert surrogate.stat().st_mtime_ns == fitted  # the same victim, eps and horizon: reused
 
 
 @pytest.mark.slow
