@@ -268,3 +268,17 @@ def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
     assert score_cell(cfg, "HalfCheetah-v5", "dagger", "physical", "quick")["episodes"] == 20
     with pytest.raises(ValueError, match="cell.json was scored on 20 episodes, not 30"):
         score_cell(VerdictBenchConfig(out=str(tmp_path), episodes=30), "HalfCheetah-v5", "dagger", "physical", "quick")
+
+
+def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
+    """fewest_rows: the smallest set of rows whose worst finds WITHIN of every row's drop in each cell of the mode,
+    the rows that ask least among as few; cells of the other mode do not count."""
+    from aril_ros.benchmarks.verdict import fewest_rows, judged
+    cells = [judged(bench_cell({"transfer": -40.0, "aril_a": -50.0})),
+             judged(bench_cell({"zoo": -30.0, "aril_a": -29.0})),
+             judged(bench_cell({"spsa": -90.0}, mode="sensory"))]
+    assert fewest_rows(cells, "physical") == ("aril_a",)  # -29 finds 0.97 of -30
+    assert fewest_rows(cells, "physical", within=1.0) == ("zoo", "aril_a")
+    assert fewest_rows(cells, "sensory") == ("spsa",)
+    # two rows as good alone: the one that asks the policy least
+    assert fewest_rows([judged(bench_cell({"transfer": -50.0, "aril_a_search": -50.0}))], "physical") == ("transfer",)
