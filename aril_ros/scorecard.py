@@ -310,6 +310,7 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
     made_by = load_policy(made.surrogate).meta.provenance
     return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
             "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo), "zoo_screened": made.screened,
+            "adversary_kept": made.kept,
             "adversary": relative(made.adversary)}
 
 

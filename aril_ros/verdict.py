@@ -9,7 +9,8 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
    of the policy file it was trained against), run against the surrogate on :data:`aril_ros.seeds.SCREENING`
    episodes; the one that takes the most return is the ``zoo`` attack;
 3. **train** ARIL-A against the surrogate, on the engine at its speed, from the zoo's best (a warm start):
-   ``adversary-<mode>.pt``, the ``aril_a`` attack;
+   ``adversary-<mode>.pt``, the ``aril_a`` attack; the zoo's best takes its place when it takes more return from the
+   final surrogate on the screening episodes (on Ant physical training against the surrogate weakened it);
 4. **refine**: the policy driven under that adversary and asked again around those states (the states an attack
    leads to, which a copy made from unattacked episodes knows least: on HalfCheetah DR physical its error there was
    39x its error on its own data), the surrogate fitted to every answer again, ARIL-A trained on from where it was;
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +49,9 @@ from .sweep import digest_of
 SEARCH = 8
 """Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
 DAgger sensory 8 took 49% of the return where none took 39% (results/aril_a_tuning.md, issue 38)."""
+PIPELINE = 2
+"""The pipeline's version in its record: files a pipeline of another version made are made again (2: the zoo's best
+may take the trained ARIL-A's place)."""
 SCREEN_EPISODES = 3
 """Episodes per zoo member in the screening (against the surrogate, so they cost no question to the policy)."""
 ZOO_FOLDERS = (DATA_DIR / "adversary", DATA_DIR / "defense-adversary")
@@ -62,6 +67,9 @@ class BlackBoxAttacks:
     adversary: Path
     screened: list[tuple[float, str]]
     """every zoo member's mean return against the surrogate, best first"""
+    kept: dict | None = None
+    """which ARIL-A ``adversary`` is, ``trained`` or the ``zoo``'s best, and each's mean return against the final
+    surrogate (None without a zoo)"""
 
 
 def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
@@ -75,13 +83,13 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
     same policy, eps, horizon, steps and refines find the files and make nothing."""
     surrogate, adversary = folder / f"surrogate-{mode}.pt", folder / f"adversary-{mode}.pt"
     record = folder / f"pipeline-{mode}.json"
-    wanted = {"victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon, "adversary_steps": steps,
-              "refines": refines, "leave_out": leave_out}
+    wanted = {"pipeline": PIPELINE, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
+              "adversary_steps": steps, "refines": refines, "leave_out": leave_out}
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {surrogate} and {adversary}")
         return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), adversary,
-                               [tuple(s) for s in made["zoo_screened"]])
+                               [tuple(s) for s in made["zoo_screened"]], made["kept"])
     cfg = SurrogateConfig()
     layout, expert_policy, rng = layout_of(env_id), resolve_policy(expert, env_id), np.random.default_rng(cfg.seed)
     with answering(victim_name, env_id, mode, domain) as victim:
@@ -108,10 +116,27 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
             ready_adversary(adversary, relative(surrogate), env_id, mode, eps, expert, share, True, log,
                             init=str(start) if start else "")
             start = adversary
-    record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened,
+        kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert_policy, horizon, log) if zoo else None
+    record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "kept": kept,
                                   "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
-    return BlackBoxAttacks(surrogate, zoo, adversary, screened)
+    return BlackBoxAttacks(surrogate, zoo, adversary, screened, kept)
+
+
+def keep_stronger(zoo: Path, adversary: Path, surrogate: Path, env_id: str, mode: str, eps: float, expert_policy,
+                  horizon: int, log=print) -> dict:
+    """The end of step 3: the trained ``adversary`` and the ``zoo``'s best it started from run against the final
+    ``surrogate`` on the screening episodes, as the zoo was screened; when the zoo's takes more return, its file
+    becomes ``adversary`` (the aril_a rows then run it). Which one was kept, and both mean returns."""
+    screened = dict((name, ret) for ret, name in screen_zoo([zoo, adversary], surrogate, env_id, mode, eps,
+                                                            expert_policy, horizon))
+    returns = {"trained": screened[relative(adversary)], "zoo": screened[relative(zoo)]}
+    kept = min(returns, key=returns.get)
+    if kept == "zoo":
+        shutil.copyfile(zoo, adversary)
+    log(f"[verdict] {mode}: ARIL-A is the {kept} one (mean return against the surrogate: trained "
+        f"{returns['trained']:.1f}, the zoo's {returns['zoo']:.1f})")
+    return {"kept": kept, "mean_return": returns}
 
 
 def made_before(record: Path, wanted: dict) -> dict | None:

@@ -130,6 +130,11 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert (f"Surrogate `{sensory['surrogate']}`: {made['queries']:,} questions to the policy, held-out error "
             f"{fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); zoo: `{sensory['zoo']}`, the strongest of "
             f"{len(screened)} against the surrogate") in text
+    kept, returns = sensory["adversary_kept"]["kept"], sensory["adversary_kept"]["mean_return"]
+    assert kept == min(returns, key=returns.get)  # the aril_a rows run the one that took more from the surrogate
+    assert (f"ARIL-A: `{sensory['adversary']}` (trained; mean return against the surrogate {returns['trained']:.1f}"
+            if kept == "trained" else f"(the zoo's, which took more from the surrogate than the trained one: mean "
+                                      f"return {returns['zoo']:.1f} against {returns['trained']:.1f})") in text
     for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
         alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
                                     attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,

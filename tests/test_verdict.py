@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,9 +66,15 @@ def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_questio
     assert box.asked == surrogate["queries"] > 0
     assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
                                                                                                HORIZON)
-    # ARIL-A was trained against the surrogate file, from the zoo's strongest (the one at the head of the screening)
-    trained = load_adversary(made.adversary).meta["provenance"]
-    assert trained["victim_sha256"] == sha256(made.surrogate) and trained["steps"] >= STEPS
+    # ARIL-A was trained against the surrogate file, from the zoo's strongest (the one at the head of the screening),
+    # or is that one where it took more return from the surrogate
+    kept = made.kept
+    assert kept["kept"] == min(kept["mean_return"], key=kept["mean_return"].get)
+    if kept["kept"] == "trained":
+        trained = load_adversary(made.adversary).meta["provenance"]
+        assert trained["victim_sha256"] == sha256(made.surrogate) and trained["steps"] >= STEPS
+    else:
+        assert sha256(made.adversary) == sha256(made.zoo)
     assert str(made.zoo) == made.screened[0][1] and made.screened == sorted(made.screened)
     assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
 
@@ -179,8 +186,11 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     other, boxes = run_pipeline(rerun, eps=0.2)
     assert len(boxes) == 1 and boxes[0].asked > 0  # the policy asked again, for the new surrogate
     assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
-    retrained = load_adversary(other.adversary)
-    assert retrained.eps == 0.2 and retrained.meta["provenance"]["victim_sha256"] == sha256(other.surrogate)
+    if other.kept["kept"] == "trained":
+        retrained = load_adversary(other.adversary)
+        assert retrained.eps == 0.2 and retrained.meta["provenance"]["victim_sha256"] == sha256(other.surrogate)
+    else:  # the zoo's (at its own eps, which the aril_a rows rescale) took more from the new surrogate
+        assert sha256(other.adversary) == sha256(other.zoo)
     assert other.surrogate.read_bytes() != before[0][1]
 
 
@@ -282,3 +292,20 @@ def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     assert fewest_rows(cells, "sensory") == ("spsa",)
     # two rows as good alone: the one that asks the policy least
     assert fewest_rows([judged(bench_cell({"transfer": -50.0, "aril_a_search": -50.0}))], "physical") == ("transfer",)
+
+
+def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_path):
+    """keep_stronger runs both against the surrogate on the screening episodes and keeps the one that takes more
+    return as the aril_a file, whichever side it is on: the same file wins either way round."""
+    from aril_ros.verdict import keep_stronger, screen_zoo
+    members = zoo_members(ENV, MODE, None)[:2]
+    expert = resolve_policy("expert", ENV)
+    surrogate = fit_surrogate(resolve_policy("dagger", ENV), ENV, MODE, EPS, tmp_path / "surrogate.pt",
+                              SurrogateConfig(episodes=2), "dagger", quiet, HORIZON)
+    strongest = screen_zoo(members, surrogate, ENV, MODE, EPS, expert, HORIZON)[0][1]
+    for zoo, trained in (members, members[::-1]):
+        adversary = tmp_path / f"adversary-{MODE}.pt"
+        shutil.copyfile(trained, adversary)
+        kept = keep_stronger(zoo, adversary, surrogate, ENV, MODE, EPS, expert, HORIZON, quiet)
+        assert kept["kept"] == ("zoo" if verdict.relative(zoo) == strongest else "trained")
+        assert sha256(adversary) == sha256(Path(strongest))

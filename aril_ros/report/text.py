@@ -248,7 +248,18 @@ def pipeline_lines(mode_result: dict) -> list[str]:
             f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); "
             + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
                "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
-            + f"ARIL-A: `{mode_result['adversary']}`.", ""]
+            + f"ARIL-A: `{mode_result['adversary']}`" + kept_line(mode_result.get("adversary_kept")) + ".", ""]
+
+
+def kept_line(kept: dict | None) -> str:
+    """Which adversary the aril_a rows run: the trained one, or the zoo's when it took more from the surrogate."""
+    if not kept:
+        return ""
+    returns = kept["mean_return"]
+    if kept["kept"] == "trained":
+        return f" (trained; mean return against the surrogate {returns['trained']:.1f}, the zoo's {returns['zoo']:.1f})"
+    return (f" (the zoo's, which took more from the surrogate than the trained one: mean return {returns['zoo']:.1f} "
+            f"against {returns['trained']:.1f})")
 
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
