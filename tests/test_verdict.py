@@ -281,8 +281,9 @@ def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
 
 
 def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
-    """fewest_rows: the smallest set of rows whose worst finds WITHIN of every row's drop in each cell of the mode,
-    the rows that ask least among as few; cells of the other mode do not count."""
+    """fewest_rows: the smallest set of rows whose worst finds WITHIN of every row's drop in each cell of the mode (of
+    the reference's where every row finds more), the rows that ask least among as few; cells of the other mode do
+    not count."""
     from aril_ros.benchmarks.verdict import fewest_rows, judged
     cells = [judged(bench_cell({"transfer": -40.0, "aril_a": -50.0})),
              judged(bench_cell({"zoo": -30.0, "aril_a": -29.0})),
@@ -290,6 +291,8 @@ def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     assert fewest_rows(cells, "physical") == ("aril_a",)  # -29 finds 0.97 of -30
     assert fewest_rows(cells, "physical", within=1.0) == ("zoo", "aril_a")
     assert fewest_rows(cells, "sensory") == ("spsa",)
+    # beyond the strongest known attack (the reference, -50%) a row adds nothing: the search's -100% is not needed
+    assert fewest_rows([judged(bench_cell({"aril_a": -60.0, "aril_a_search": -100.0}))], "physical") == ("aril_a",)
     # two rows as good alone: the one that asks the policy least
     assert fewest_rows([judged(bench_cell({"transfer": -50.0, "aril_a_search": -50.0}))], "physical") == ("transfer",)
 
