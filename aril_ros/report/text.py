@@ -233,7 +233,8 @@ HOW_ATTACKS_ASK = (
     "its questions and held-out fidelity below); it asks the policy nothing while it attacks;",
     "- ARIL-A from the zoo: the bundled adversary (none trained against this very file) that took the most return "
     "from the surrogate on screening episodes; one question per step when the policy's action is an input of it;",
-    "- ARIL-A: trained against the surrogate, from the zoo's adversary; asks as the zoo's;",
+    "- ARIL-A: trained against the surrogate, from the zoo's adversary (or that adversary, where it took more return "
+    "from the surrogate); asks as the zoo's;",
     "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
     "ARIL-A's own question, the most damaging applied;",
     "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
