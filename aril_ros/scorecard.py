@@ -310,8 +310,8 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
     """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo."""
     made_by = load_policy(made.surrogate).meta.provenance
     return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
-            "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo), "zoo_screened": made.screened,
-            "adversary_kept": made.kept,
+            "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo),
+            "zoo_screened": made.screened, "adversary_kept": made.kept,
             "adversary": relative(made.adversary)}
 
 

@@ -80,9 +80,15 @@ def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_p
             for cell in sweep.values():
                 assert [e["env_seed"] for e in cell["episodes"]] == seeds
                 assert {e["steps"] for e in cell["episodes"]} == {horizon}
-        run = read_run(tmp_path / "card" / "logs" / f"{mode}-aril_a-adversary-{mode}-search{SEARCH}-{result['eps']:g}.mcap")
-        assert set(run.probes_per_step) == {result["attacks"]["aril_a_search"]["1.0"]["queries_per_step"]} == {10}
-        np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :6]))  # no probe's answer was stepped on
+        # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more: all probes in the log
+        for attack, asked in (("aril_a", 1), ("aril_a_search", SEARCH + 2)):
+            if attack not in result["attacks"]:
+                continue
+            search = f"-search{SEARCH}" if attack == "aril_a_search" else ""
+            log = f"{mode}-aril_a-adversary-{mode}{search}-{result['eps']:g}.mcap"
+            run = read_run(tmp_path / "card" / "logs" / log)
+            assert set(run.probes_per_step) == {result["attacks"][attack]["1.0"]["queries_per_step"]} == {asked}
+            np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :6]))  # no probe's answer was stepped on
         assert (tmp_path / "card" / f"sweep-{mode}.png").stat().st_size > 0
         at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}
         assert result["worst"]["attack"] == min(at_eps, key=at_eps.get)
