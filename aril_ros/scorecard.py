@@ -9,8 +9,8 @@ expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; t
 policy for actions:
 SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
-against the surrogate from it, alone and with query-time search; and, when the policy is a file whose gradients can
-be taken, the white-box FGSM and FGSM^k. The worst of them is the verdict (AutoAttack's rule: no knob a user could
+against the surrogate from it (or that one, where it takes more from the surrogate), alone and with query-time
+search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of them is the verdict (AutoAttack's rule: no knob a user could
 set to a soft verdict). eps is the calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name
 trained per attack mode (dr, aril) is another file in each mode, each with a clean cell of its own (a drop compares
 the same policy clean and attacked).
