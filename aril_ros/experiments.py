@@ -223,9 +223,9 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
         wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                       steps=cfg.adversary_steps, out=str(adversary)))
+        files = {"aril_a": adversary, TRANSFER_ROW: surrogates[env]}
         for row in rows_of:
             attack = "aril_a" if row == SEARCH_ROW else row
-            files = {"aril_a": adversary, TRANSFER_ROW: surrogates[env]}
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                           eps=0.0 if attack == "none" else eps, k=cfg.k,

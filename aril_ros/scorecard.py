@@ -10,8 +10,8 @@ policy for actions:
 SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
 against the surrogate from it (or that one, where it takes more from the surrogate), alone and with query-time
-search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of them is the verdict (AutoAttack's rule: no knob a user could
-set to a soft verdict). eps is the calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name
+search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of
+them is the verdict (AutoAttack's rule: no knob a user could set to a soft verdict). eps is the calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name
 trained per attack mode (dr, aril) is another file in each mode, each with a clean cell of its own (a drop compares
 the same policy clean and attacked).
 
@@ -123,7 +123,7 @@ PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""
 QUICK_ROWS = {"sensory": ("transfer", "aril_a_search"), "physical": ("aril_a",)}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes. Chosen on screening
-episodes (results/verdict-screening/verdict.md, 14 cells of HalfCheetah and Ant; results/aril_a_tuning.md, issue 38):
+episodes (results/verdict-screening/verdict.md, 16 cells of HalfCheetah and Ant; results/aril_a_tuning.md, issue 38):
 with the aril_a rows running the stronger of the zoo's best and the trained ARIL-A, the rows left out (random, SPSA^k
 and the zoo in both modes, transfer and search in physical mode) lifted no cell's verdict to 0.9 of the reference."""
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
