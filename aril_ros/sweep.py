@@ -49,9 +49,12 @@ class Shipped:
 
 @dataclass(frozen=True)
 class Produced:
-    """A file a task writes (in a call: replaced by a path on the task's node; the driver gets the bytes)."""
+    """A file a task writes (in a call: replaced by a path on the task's node; the driver gets the bytes). A task on
+    the driver's own Ray node writes a file named by an absolute path at that very path, so that what it records of
+    itself (a trained file's provenance) names it as the driver does."""
 
     path: Path
+    node: str | None = None  # the driver's Ray node, set as the call is shipped
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,7 @@ class _Content:
     path: Path  # as the call gave it
     digest: str
     ref: object  # the bytes, as an ObjectRef in Ray's store
+    node: str  # the driver's Ray node, where the file is at ``path`` itself when that is absolute
 
 
 def digest_of(data: bytes) -> str:
@@ -131,11 +135,14 @@ def _task(fn, call):
     import ray
 
     scratch = Path(tempfile.mkdtemp(prefix="aril_ros-task-"))
-    made = {}
+    made, here = {}, ray.get_runtime_context().get_node_id()
 
     def leaf(marked):
         path = Path(marked.path)
         if isinstance(marked, _Content):
+            if path.is_absolute() and marked.node == here and path.is_file() and digest_of(
+                    path.read_bytes()) == marked.digest:
+                return path  # on the driver's node the driver's file itself, so the task records its path
             stored = node_copy(marked.digest, path.suffix, lambda: ray.get(marked.ref))
             if path.is_absolute():
                 return stored
@@ -149,6 +156,10 @@ def _task(fn, call):
                 return folder
             (scratch / path).parent.mkdir(parents=True, exist_ok=True)
             (scratch / path).symlink_to(folder, target_is_directory=True)
+            return path
+        if path.is_absolute() and marked.node == here:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            made[str(path)] = path
             return path
         made[str(path)] = scratch / (path if not path.is_absolute() else path.name)
         made[str(path)].parent.mkdir(parents=True, exist_ok=True)
@@ -260,21 +271,23 @@ def run_tasks(fn, calls: list[tuple], workers: int = 2, address: str = "", cpus:
     try:
         progress.parallel = int(ray.cluster_resources().get("CPU", workers) // cpus)
         contents: dict[Path, _Content] = {}
+        driver = ray.get_runtime_context().get_node_id()
 
         def ship(marked, destinations):
             # a file inside the checkout is shown to the task by its checkout-relative path (and sits at that path
             # in its scratch folder), so what the task records of it reads as it would on the driver, where
-            # provenance.stamp makes such paths relative; ``destinations`` maps it back to the driver's path
+            # provenance.stamp makes such paths relative; ``destinations`` maps it back to the driver's path. Any
+            # other absolute path is the driver's file itself to a task on the driver's node
             if isinstance(marked, Kept):
                 return marked
             shown = Path(portable(str(marked.path)))
             if shown != Path(marked.path):
                 destinations[str(shown)] = Path(marked.path)
             if isinstance(marked, Produced):
-                return Produced(shown)
+                return Produced(shown, driver)
             if marked.path not in contents:
                 data = Path(marked.path).read_bytes()
-                contents[marked.path] = _Content(shown, digest_of(data), ray.put(data))
+                contents[marked.path] = _Content(shown, digest_of(data), ray.put(data), driver)
             return contents[marked.path]
 
         remote = ray.remote(num_cpus=cpus, max_retries=0)(_task)

@@ -62,6 +62,12 @@ def two_nodes():
     cluster.shutdown()
 
 
+def two_nodes_driver() -> str:
+    import ray
+
+    return ray.get_runtime_context().get_node_id()
+
+
 @pytest.mark.slow
 def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path):
     sources = []
@@ -73,10 +79,13 @@ def test_tasks_run_on_both_nodes_and_files_travel_by_content(two_nodes, tmp_path
     results = dict(run_tasks(where_and_what, calls, address=two_nodes.address, label="files",
                              log=lambda line, **_: lines.append(line)))
     assert len({node for node, _, _ in results.values()}) == 2, "every task ran on one node"
-    for i, (_, seen_source, seen_out) in results.items():
-        assert seen_source != str(sources[i])  # the task read its node's copy, found by the file's digest
+    driver = two_nodes_driver()
+    for i, (node, seen_source, seen_out) in results.items():
+        # on the driver's node the task reads the driver's file (what it records of it is then what the driver named);
+        # on the other node its node's copy, found by the file's digest
+        assert (seen_source == str(sources[i])) == (node == driver)
         assert Path(seen_out) == tmp_path / "out" / f"out{i}.txt"  # a result naming a made file names the driver's
-        assert (tmp_path / "out" / f"out{i}.txt").read_text() == f"FILE {i}"
+        assert (tmp_path / "out" / f"out{i}.txt").read_text() == f"FILE {i}"  # made files come back to the driver
     assert lines[-1].startswith("[sweep] files: 6/6 done, 0 running, 0 failed")
 
 
