@@ -86,7 +86,7 @@ from .report.plots import plot_scorecard_sweep
 from .report.stats import paired_drop, worst_attack
 from .report.text import scorecard_markdown
 from .sweep import session
-from .verdict import SEARCH, BlackBoxAttacks, black_box_attacks, relative
+from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
 
 
 @dataclass(frozen=True)
@@ -167,9 +167,9 @@ class ScorecardConfig:
     adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)",
                                low=0, high=10**9)
     horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
-    workers: int = arg(2, "a policy file or bundled name: CPUs of the local Ray its cells run on as tasks (1: one "
-                          "after the other in this process); an external node's cells run one after the other",
-                       low=1, high=1024)
+    workers: int = arg(2, "CPUs of the local Ray that a policy file's or bundled name's cells, and the black-box "
+                          "pipeline's ARIL-A trainings, run on as tasks (1: one after the other in this process); an "
+                          "external node's cells run one after the other", low=1, high=1024)
     address: str = arg("", "a policy file or bundled name: run its cells on this Ray cluster instead (<head ip>:6379, "
                            "or auto)")
     out: str = arg("", "the folder to write (default runs/scorecard-<env>-<policy name>)")
@@ -192,8 +192,7 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         cleans = runner.run([cell(cfg, budget, "clean", "none", 0.0, policy=policy) for policy in tested], log,
                             "scorecard clean cell" + ("s" if len(tested) > 1 else ""))
         clean = dict(zip(tested, cleans))
-        made = {mode: pipeline_for(cfg, mode, eps[mode], budget, out, log)
-                for mode in modes} if set(attacks) & set(PIPELINE_ATTACKS) else {}
+        made = pipelines_for(cfg, modes, eps, budget, out, log) if set(attacks) & set(PIPELINE_ATTACKS) else {}
         rows = {mode: rows_of(cfg, budget, attacks, mode, made.get(mode)) for mode in modes}
         plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode))
                 for mode in modes for attack in rows[mode] for scale in scales]
@@ -297,13 +296,18 @@ def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:
     return CellRunner(via_of(cfg), workers=cfg.workers, address=cfg.address, logs=logs)
 
 
-def pipeline_for(cfg: ScorecardConfig, mode: str, eps: float, budget: Budget, out: Path, log) -> BlackBoxAttacks:
-    """The black-box pipeline's files for ``mode`` (:mod:`aril_ros.verdict`), in ``out``; a rerun reuses them."""
-    log(f"[scorecard] {mode}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
-        f"{budget.adversary_steps:,} steps against the surrogate (eps {eps:g})")
-    return black_box_attacks(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps, cfg.expert,
-                             budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines,
-                             policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "")
+def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Budget, out: Path, log
+                  ) -> dict[str, BlackBoxAttacks]:
+    """The black-box pipeline's files for each mode (:mod:`aril_ros.verdict`), in ``out``; a rerun reuses them. The
+    modes' pipelines run side by side, their ARIL-A trainings at once on ``workers`` CPUs (an external node's
+    scorecard starts a Ray for them alone: its cells run in this process)."""
+    log(f"[scorecard] {', '.join(modes)}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
+        f"{budget.adversary_steps:,} steps against the surrogate (eps " + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
+    pipelines = [pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
+                          budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines,
+                          policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in modes]
+    with session(cfg.workers, cfg.address) if cfg.policy == "external" else nullcontext():
+        return dict(zip(modes, run_pipelines(pipelines, log, cfg.workers, cfg.address)))
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:

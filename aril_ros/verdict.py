@@ -35,12 +35,13 @@ import numpy as np
 
 from . import plugins, seeds
 from .args import arg
-from .adversary import ready_adversary
+from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
 from .attacks import LearnedAttack
 from .envs import HORIZON, layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .protocol import ros_domain
+from .provenance import portable
 from .registry import ATTACKED_MODES, DATA_DIR, DEFAULT_ENV, DEFENSES, MAX_EPS, bundled_file, calibrated_eps, check_name
 from .rollout import RolloutEngine
 from .surrogate import SurrogateConfig, fit_answers, fit_surrogate, gather
@@ -75,12 +76,47 @@ class BlackBoxAttacks:
 def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
                       domain: str = "", log=print, horizon: int = HORIZON, refines: int = 1,
                       leave_out: str = "") -> BlackBoxAttacks:
+    """The pipeline of one mode (:func:`pipeline`), its trainings in this process."""
+    return run_pipelines([pipeline(victim_name, env_id, mode, eps, expert, steps, folder, domain, log, horizon,
+                                   refines, leave_out)], log)[0]
+
+
+def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
+    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for an adversary's training,
+    and the trainings all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the cluster at
+    ``address``); the questions to the policy stay one pipeline at a time. Two modes train on two CPUs in the time
+    of one."""
+    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
+    asked: dict[int, AdversaryConfig] = {}
+
+    def advance(index: int) -> None:
+        try:
+            asked[index] = next(pipelines[index])
+        except StopIteration as done:
+            made[index] = done.value
+            asked.pop(index, None)
+
+    for index in range(len(pipelines)):
+        advance(index)
+    while asked:
+        ready_adversaries(list(asked.values()), True, log, workers, address)
+        for index in list(asked):
+            advance(index)
+    return made
+
+
+def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
+             domain: str = "", log=print, horizon: int = HORIZON, refines: int = 1, leave_out: str = ""):
     """The pipeline for the policy ``victim_name`` (a file, a bundled name, or ``ros``: an external node in
     ``domain``) in ``mode`` at ``eps``, on episodes of ``horizon`` steps (the scored ones'); ARIL-A trained ``steps``
     steps in all, the surrogate refined ``refines`` times; the zoo leaves out the adversaries trained against
     ``victim_name``'s file, or for an external node against ``leave_out``'s (the file it serves, when it is one of
     ours: the verdict of a policy the testbed has never seen). Its record, ``pipeline-<mode>.json``, lets a rerun for the
-    same policy, eps, horizon, steps and refines find the files and make nothing."""
+    same policy, eps, horizon, steps and refines find the files and make nothing.
+
+    A generator (run it with :func:`run_pipelines`): it yields each ARIL-A training it needs as an
+    :class:`AdversaryConfig` and goes on once that file is trained; it returns the :class:`BlackBoxAttacks`. The
+    policy is connected only while it is asked (steps 1 and 4), so pipelines side by side ask it one at a time."""
     surrogate, adversary = folder / f"surrogate-{mode}.pt", folder / f"adversary-{mode}.pt"
     record = folder / f"pipeline-{mode}.json"
     wanted = {"pipeline": PIPELINE, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
@@ -94,29 +130,31 @@ def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expe
     layout, expert_policy, rng = layout_of(env_id), resolve_policy(expert, env_id), np.random.default_rng(cfg.seed)
     with answering(victim_name, env_id, mode, domain) as victim:
         questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, rng)
-        fit_answers(questions, answers, env_id, cfg, {**wanted, "round": 0, "queries": victim.asked}, surrogate, log)
-        left_out = victim_digest(leave_out or victim_name, env_id, mode)
-        screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert_policy,
-                              horizon)
-        zoo = Path(screened[0][1]) if screened else None
-        log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(zoo)} "
-                                     f"({len(screened)} screened, mean return {screened[0][0]:.1f})" if zoo else
-                                     f"no bundled adversary of {env_id} {mode} for the zoo: ARIL-A from fresh weights"))
-        start = zoo if zoo and load_adversary(zoo).eps == eps else None
-        for round_ in range(refines + 1):
-            if round_:  # refine: the policy asked where the adversary leads it, the surrogate fitted to all again
+        queries = victim.asked
+    fit_answers(questions, answers, env_id, cfg, {**wanted, "round": 0, "queries": queries}, surrogate, log)
+    left_out = victim_digest(leave_out or victim_name, env_id, mode)
+    screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert_policy, horizon)
+    zoo = Path(screened[0][1]) if screened else None
+    log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(zoo)} "
+                                 f"({len(screened)} screened, mean return {screened[0][0]:.1f})" if zoo else
+                                 f"no bundled adversary of {env_id} {mode} for the zoo: ARIL-A from fresh weights"))
+    start = zoo if zoo and load_adversary(zoo).eps == eps else None
+    for round_ in range(refines + 1):
+        if round_:  # refine: the policy asked where the adversary leads it, the surrogate fitted to all again
+            with answering(victim_name, env_id, mode, domain) as victim:
                 attack = LearnedAttack(layout, load_adversary(adversary, env_id, mode), victim=victim,
                                        expert=expert_policy)
                 more = gather(victim, env_id, mode, eps, cfg, horizon, rng, attack,
                               seeds.SURROGATE + round_ * cfg.episodes)
-                questions, answers = np.concatenate([questions, more[0]]), np.concatenate([answers, more[1]])
-                fit_answers(questions, answers, env_id, cfg, {**wanted, "round": round_, "queries": victim.asked},
-                            surrogate, log)
-            share = steps // (refines + 1) + (steps % (refines + 1) if round_ == refines else 0)
-            ready_adversary(adversary, relative(surrogate), env_id, mode, eps, expert, share, True, log,
-                            init=str(start) if start else "")
-            start = adversary
-        kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert_policy, horizon, log) if zoo else None
+                queries += victim.asked
+            questions, answers = np.concatenate([questions, more[0]]), np.concatenate([answers, more[1]])
+            fit_answers(questions, answers, env_id, cfg, {**wanted, "round": round_, "queries": queries},
+                        surrogate, log)
+        share = steps // (refines + 1) + (steps % (refines + 1) if round_ == refines else 0)
+        yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=relative(surrogate), expert=expert, steps=share,
+                              init=str(start) if start else "", out=str(adversary))
+        start = adversary
+    kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert_policy, horizon, log) if zoo else None
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "kept": kept,
                                   "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
@@ -255,17 +293,24 @@ class FitSurrogateConfig:
     out: str = arg("", "where to write it (default runs/surrogate-<env>-<mode>.pt)")
 
 
+def surrogate_fits(path: Path, victim_name: str, env_id: str, mode: str, eps: float, horizon: int) -> bool:
+    """Whether ``path`` holds the pipeline's first surrogate of ``victim_name`` (a file inside the checkout by its
+    relative path, as the surrogate records it) in ``mode`` at ``eps`` from episodes of ``horizon`` steps."""
+    if not path.exists():
+        return False
+    made = load_policy(path, env_id).meta.provenance
+    return ((made.get("victim"), made.get("mode"), made.get("eps"), made.get("horizon"))
+            == (portable(victim_name), mode, eps, horizon))
+
+
 def ready_surrogate(victim_name: str, env_id: str, mode: str, eps: float, out: Path, horizon: int = HORIZON,
                     log=print) -> Path:
     """``out``, the pipeline's first surrogate of ``victim_name`` (a file or bundled name) in ``mode`` at ``eps``:
     reused when it was fitted to that victim at that eps and horizon, else fitted now."""
-    if out.exists():
-        made = load_policy(out, env_id).meta.provenance
-        if (made.get("victim"), made.get("mode"), made.get("eps"), made.get("horizon")) == (victim_name, mode, eps,
-                                                                                               horizon):
-            return out
+    if surrogate_fits(out, victim_name, env_id, mode, eps, horizon):
+        return out
     with answering(victim_name, env_id, mode, "") as victim:
-        return fit_surrogate(victim, env_id, mode, eps, out, SurrogateConfig(), victim_name, log, horizon)
+        return fit_surrogate(victim, env_id, mode, eps, out, SurrogateConfig(), portable(victim_name), log, horizon)
 
 
 def fit_surrogate_command(cfg: FitSurrogateConfig) -> Path:

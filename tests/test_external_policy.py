@@ -345,8 +345,11 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     expected = [(steps(clean), 0)] + [(steps(cell), cell["queries"]) for cell in cells]
     expected[1] = (expected[1][0], expected[1][1] + surrogates)
     assert runs_answered(tags) == expected
-    # between the clean run and the first cell's, the surrogates' questions, mode by mode (each numbered from 0)
+    # between the clean run and the first cell's, the surrogates' questions (each connection's numbered from 0): the
+    # modes' pipelines side by side, each mode's copy, then each mode's refinement
     between = tags[steps(clean):tags.index("0/0", steps(clean))]
     starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
-    assert np.diff([*starts, len(between)]).tolist() == [r["surrogate_queries"] for r in card["modes"].values()]
+    copy_sensory, copy_physical, refine_sensory, refine_physical = np.diff([*starts, len(between)]).tolist()
+    assert [copy_sensory + refine_sensory, copy_physical + refine_physical] == [
+        r["surrogate_queries"] for r in card["modes"].values()]
     assert all(cell["queries"] == cell["queries_per_step"] * steps(cell) for cell in cells)

@@ -74,7 +74,7 @@ def test_the_worst_case_and_its_paired_interval_come_from_the_episodes(small_car
 @pytest.mark.slow
 def test_a_rerun_reuses_the_surrogate_and_the_adversary_trained_against_it(small_card, tmp_path):
     cfg, out, _, lines = small_card
-    made = ("[surrogate]", "[train-adversary")  # what fitting the surrogate and training ARIL-A log
+    made = ("[surrogate]", "[sweep] adversary trainings")  # what fitting the surrogate and training ARIL-A log
     assert all(any(line.startswith(start) for line in lines) for start in made)
     again, rerun = [], shutil.copytree(out, tmp_path / "card")  # the other tests read the first run's folder
     scorecard(dataclasses.replace(cfg, attacks="aril_a", scales="1", out=str(rerun)),

@@ -9,18 +9,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from aril_ros import verdict
 from aril_ros.adversary import load_adversary
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.evaluation import EvalConfig, evaluate
-from aril_ros.policy import load_policy, policy_file, resolve_policy
+from aril_ros.policy import load_policy, load_weights, policy_file, resolve_policy
 from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, calibrated_eps
 from aril_ros.rollout import RolloutEngine
 from aril_ros.surrogate import SurrogateConfig, fit_surrogate
 from aril_ros.verdict import SEARCH, black_box_attacks, victim_digest, zoo_members
-from tests.conftest import AnswersOnly
+from tests.conftest import AnswersOnly, local_ray
 
 ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
 HORIZON = 50
@@ -61,9 +62,11 @@ def sha256(path) -> str:
 @pytest.mark.slow
 def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_question(pipeline):
     folder, made, boxes = pipeline
-    [box] = boxes  # one black box, the surrogate's: the zoo and ARIL-A's training ask the surrogate
+    # the policy connected while the surrogate's questions are put (the copy, then the refinement), never while the
+    # zoo is screened or ARIL-A trained: those ask the surrogate
+    assert len(boxes) == 2 and all(box.asked > 0 for box in boxes)
     surrogate = load_policy(made.surrogate).meta.provenance
-    assert box.asked == surrogate["queries"] > 0
+    assert sum(box.asked for box in boxes) == surrogate["queries"]
     assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
                                                                                                HORIZON)
     # ARIL-A was trained against the surrogate file, from the zoo's strongest (the one at the head of the screening),
@@ -184,7 +187,7 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
     assert (again.zoo, again.screened) == (first.zoo, first.screened)
     other, boxes = run_pipeline(rerun, eps=0.2)
-    assert len(boxes) == 1 and boxes[0].asked > 0  # the policy asked again, for the new surrogate
+    assert len(boxes) == 2 and boxes[0].asked > 0  # the policy asked again, for the new surrogate
     assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
     if other.kept["kept"] == "trained":
         retrained = load_adversary(other.adversary)
@@ -192,6 +195,24 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     else:  # the zoo's (at its own eps, which the aril_a rows rescale) took more from the new surrogate
         assert sha256(other.adversary) == sha256(other.zoo)
     assert other.surrogate.read_bytes() != before[0][1]
+
+
+@pytest.mark.slow
+def test_pipelines_side_by_side_make_the_files_each_makes_alone(pipeline, tmp_path):
+    """Two modes' pipelines run together (their trainings at once, as Ray tasks) make byte for byte the files the
+    pipeline makes alone in this process: the scorecard runs its modes so, two trainings in the time of one."""
+    folder, alone, _ = pipeline
+    with local_ray():
+        both = verdict.run_pipelines([verdict.pipeline("dagger", ENV, mode, eps, "expert", STEPS, tmp_path,
+                                                       log=quiet, horizon=HORIZON)
+                                      for mode, eps in ((MODE, EPS), ("physical", 0.005))], quiet, workers=2)
+    assert [made.adversary.name for made in both] == [f"adversary-{MODE}.pt", "adversary-physical.pt"]
+    # the same weights (their provenance has the times they were made)
+    for name, kind in ((alone.surrogate.name, "policy"), (alone.adversary.name, "adversary")):
+        ours, theirs = (load_weights(path, kind)[1] for path in (tmp_path / name, folder / name))
+        assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours), name
+    assert (both[0].screened, both[0].kept) == (alone.screened, alone.kept)
+    assert load_adversary(both[1].adversary).meta["provenance"]["settings"]["mode"] == "physical"
 
 
 def test_aril_fit_surrogate_writes_the_file_attack_transfer_runs_on(tmp_path, capsys):
