@@ -29,8 +29,8 @@ from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
 from .provenance import portable, stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, THREATS, adversary_path,
-                       bundled_file, calibrated_eps, surrogate_path, user_calibration)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, TABLE_SEARCH, THREATS,
+                       adversary_path, bundled_file, calibrated_eps, surrogate_path, user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
 from .verdict import ready_surrogate
@@ -192,7 +192,8 @@ class AttackTableConfig:
     seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)",
                     low=0, high=2**31 - 1)
     k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)", low=0, high=1000)
-    search: int = arg(16, "candidates of ARIL-A's query-time search in its own row (0: no such row)", low=0, high=1000)
+    search: int = arg(TABLE_SEARCH, "candidates of ARIL-A's query-time search in its own row (0: no such row)",
+                      low=0, high=1000)
     adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet", low=1, high=10**9)
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")

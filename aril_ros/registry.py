@@ -43,6 +43,8 @@ SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", "aril_a_search": "
 zoo as it is; its own with query-time search)."""
 SURROGATE_ATTACKS = ("transfer",)
 """Black-box attacks that compute on a surrogate of the victim (``attack_file``), never asking the victim."""
+TABLE_SEARCH = 16
+"""Candidates of ARIL-A's query-time search in the tables' ARIL-A + search rows (the attack tables', the report's)."""
 WHITE_BOX = ("fgsm", "fgsm_k")
 """Attacks that need the victim's weights (gradients)."""
 QUERY_ATTACKS = ("spsa",)

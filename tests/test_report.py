@@ -86,11 +86,17 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
         text = out.read_text()
         figures = tmp_path / "docs" / "results"
         payload = json.loads((figures / "report.json").read_text())
-        # 5 defenses x (clean + 4 attacks + 4 sweep attacks x 2 scales)
-        assert len(payload["evaluations"]) == 5 * (6 + 5 * 2)
-        for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)", "GAIL", "DR",
-                    "DART", "ARIL"):
+        # 5 defenses x (clean + 5 attacks + 5 sweep attacks x 2 scales), and DAgger under the 2 black-box rows
+        assert len(payload["evaluations"]) == 5 * (6 + 5 * 2) + 2
+        for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)",
+                    "FGSM^k on a surrogate (on DAgger)", "ARIL-A + search (on DAgger)", "GAIL", "DR", "DART", "ARIL"):
             assert f"| {row} |" in text
+        # the black-box rows: a surrogate fitted here (the bundled one is for 1000-step episodes), and search
+        jobs = {e["key"]["attack"]: e["job"] for e in payload["evaluations"]
+                if e["key"]["defense"] == "dagger" and e["key"]["scale"] == 1.0}
+        assert jobs["transfer"]["attack_file"].endswith("surrogates/Swimmer-v5-physical-dagger-seed0.pt")
+        assert jobs["aril_a_search"] == {**jobs["aril_a"], "search": 16}
+        assert "The strongest black-box attack" in text and "takes at least as much as white-box FGSM^k in" in text
         assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
         assert "Ant's contact-force" not in text
         assert "| Swimmer-v5 physical seed 0 | 10 | pi_8 | 1,000,000 steps per round, fresh each round, the strongest of 3 |" in text
@@ -106,17 +112,17 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
         assert "aril_ros/data/dagger/Swimmer-v5.pt" in cached_policies
         assert not any(Path(p).is_absolute() and not p.startswith(str(tmp_path)) for p in cached_policies)
         # the CPU the evaluations ran on (another model gives other returns from the same files)
-        assert payload["evaluated_on"] == {cpu(): 80} and f"; evaluated on {cpu()} (another MuJoCo" in text
+        assert payload["evaluated_on"] == {cpu(): 82} and f"; evaluated on {cpu()} (another MuJoCo" in text
         # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
         stages = payload["compute"]["stages"]
-        assert stages["evaluations"] == {**stages["evaluations"], "tasks": 80, "untimed": 0}
+        assert stages["evaluations"] == {**stages["evaluations"], "tasks": 82, "untimed": 0}
         assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5
         hours = payload["compute"]["hours_on_cores"]
         assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
         logged.clear()
         build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-        assert any("80 evaluations: 80 cached, 0 to run" in line for line in logged)
-        assert "distinct evaluations" not in text and "0 of 80 distinct evaluations run here" in out.read_text()
+        assert any("82 evaluations: 82 cached, 0 to run" in line for line in logged)
+        assert "distinct evaluations" not in text and "0 of 82 distinct evaluations run here" in out.read_text()
         assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 

@@ -8,15 +8,17 @@ What it runs, in order (:func:`build_report`), and the room of this package that
 1. **Performance** (``perf``, first, on an idle machine): every benchmark registered in the
    ``aril_ros.benchmarks`` entry points (engine, graph, adversary) as ``python -m <module>``, their
    closing JSON lines read back; ratios to raw MuJoCo.
-2. **Policies and adversaries** (``artifacts``) per defense, env, mode and training seed. Seed 0 is the
-   bundled policy (``aril_ros/data/<defense>/``) and the bundled ARIL-A trained against it
-   (``registry.adversary_path``); other seeds are trained here by the bundled policy's own settings (its
+2. **Policies and adversaries** (``artifacts``) per defense, env, mode and training seed, and a surrogate of
+   each DAgger policy (its transfer row's). Seed 0 is the bundled policy (``aril_ros/data/<defense>/``), the
+   bundled ARIL-A trained against it (``registry.adversary_path``) and, for DAgger, the bundled surrogate
+   (``registry.surrogate_path``); other seeds are trained here by the bundled policy's own settings (its
    provenance) with ``seed`` changed, then an ARIL-A against each, into ``<work_dir>/``, ``workers``
    trainings side by side (each on one thread; a finished file is kept, so an interrupted run resumes, and a
    learner's training keeps its finished rounds in ``<work_dir>/learners/<name>/`` until it finishes, so an
    interrupted ARIL resumes after its last round). A missing or failed one makes its cells say why.
 3. **Evaluations** (``jobs``), ``workers`` at a time in spawned processes: every policy clean and under
-   random, FGSM, FGSM^k, SPSA^k and its own ARIL-A at the calibrated eps (the tables), and under the sweep attacks
+   random, FGSM, FGSM^k, SPSA^k and its own ARIL-A at the calibrated eps (the tables), DAgger also under the
+   black-box rows (``paper.BLACK_BOX_ROWS``: transfer from its surrogate, ARIL-A + search), and under the sweep attacks
    at multiples of it (the eps sweeps; ARIL-A's perturbation is scaled to each eps), episodes from
    ``seeds.DEFENSE_TABLE``. Each evaluation is cached in ``<work_dir>/cache/`` under a key of its
    arguments and the files' digests, so an interrupted report resumes and a changed policy is evaluated again.
@@ -169,8 +171,9 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
         policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
                                    for defense in PAPER_DEFENSES for seed in training_seeds])
         adversaries = store.adversaries(policies, eps)
-        plan = evaluation_plan(policies, adversaries, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
-                               scales_of(cfg), cfg.horizon)
+        surrogates = store.surrogates(policies, eps, cfg.horizon)
+        plan = evaluation_plan(policies, adversaries, surrogates, eps, cfg.episodes, cfg.sweep_episodes,
+                               sweep_attacks, scales_of(cfg), cfg.horizon)
         returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
                                             cfg.address, cfg.fresh, log)
     evals = by_cell(plan, returns)
@@ -187,7 +190,8 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
                "envs": envs, "modes": modes, "seeds": training_seeds,
                "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"{DEFENSE_TABLE}..{DEFENSE_TABLE + max(cfg.episodes, cfg.sweep_episodes) - 1}",
-               "files": {_relative(p): digest(p) for p in {*policies.values(), *adversaries.values()} if p},
+               "files": {_relative(p): digest(p) for p in {*policies.values(), *adversaries.values(),
+                                                           *surrogates.values()} if p},
                "missing": {" ".join(map(str, k)): v for k, v in store.missing.items()},
                "benchmarks": benchmarks, "aril_rounds": curves,
                "overall_drop": {m: {f"{d} {a}": v for (d, a), v in o.items()} for m, o in overall.items()},

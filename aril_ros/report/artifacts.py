@@ -1,6 +1,7 @@
 """The files a report evaluates: per (defense, env, mode, training seed) a policy and the ARIL-A
-trained against it. Seed 0 is the bundled policy and its bundled adversary; another seed is trained
-here by the bundled policy's own settings (its provenance) with ``seed`` changed."""
+trained against it, and for DAgger the surrogate its transfer row attacks. Seed 0 is the bundled policy and its
+bundled adversary and surrogate; another seed is trained here by the bundled policy's own settings (its provenance)
+with ``seed`` changed."""
 from __future__ import annotations
 
 import os
@@ -12,8 +13,9 @@ from ..adversary import ready_adversary, trained_for
 from ..args import command_line
 from ..policy import load_weights
 from ..provenance import settings_of
-from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file
+from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file, surrogate_path
 from ..sweep import Kept, Produced, Shipped, run_tasks
+from ..verdict import ready_surrogate, surrogate_fits
 from .jobs import FAILURES
 
 
@@ -107,6 +109,28 @@ class Artifacts:
             wanted[(defense, env, mode, seed)] = out
             calls[out] = (env, mode, Shipped(policy), eps[env, mode], self.adversary_steps, Produced(out))
         return self._prepare("adversary", wanted, train_seed_adversary, calls)
+
+    def surrogates(self, policies: dict[tuple, Path | None], eps: dict[tuple, float], horizon: int
+                   ) -> dict[tuple, Path | None]:
+        """The surrogate of each DAgger policy that DAgger's transfer row attacks: the bundled one for seed 0 (when
+        fitted at this eps and horizon), else fitted here (seconds each: in this process, not as tasks)."""
+        files = {}
+        for (defense, env, mode, seed), policy in policies.items():
+            if defense != "dagger" or policy is None:
+                continue
+            bundled = surrogate_path(env, mode)
+            if seed == 0 and surrogate_fits(bundled, "dagger", env, mode, eps[env, mode], horizon):
+                files[(defense, env, mode, seed)] = bundled
+                continue
+            out = self.work / "surrogates" / f"{env}-{mode}-dagger-seed{seed}.pt"
+            try:
+                files[(defense, env, mode, seed)] = ready_surrogate(str(policy), env, mode, eps[env, mode], out,
+                                                                    horizon, self.log)
+            except FAILURES as err:
+                self.missing[("surrogate", defense, env, mode, seed)] = str(err)
+                self.log(f"[report] no surrogate for {defense} {env} {mode} {seed}: {err}", flush=True)
+                files[(defense, env, mode, seed)] = None
+        return files
 
 
 def aril_rounds(policies: dict) -> dict:

@@ -17,8 +17,9 @@ from ..evaluation import evaluation_task, shipped_job
 from ..files import write_atomically
 from ..policy import PolicyFileError
 from ..provenance import cpu, portable
-from ..registry import THREATS
+from ..registry import TABLE_SEARCH, THREATS
 from ..sweep import run_tasks
+from .paper import BLACK_BOX_ROWS
 
 FAILURES = (PolicyFileError, ValueError, RuntimeError, OSError)
 """Recorded as a missing file or a failed benchmark, not raised."""
@@ -40,27 +41,33 @@ class Key:
     seed: int
 
 
-def evaluation_plan(policies: dict, adversaries: dict, eps: dict, episodes: int, sweep_episodes: int,
-                    sweep_attacks: list[str], scales: list[float], horizon: int) -> list[tuple[Key, dict]]:
+def evaluation_plan(policies: dict, adversaries: dict, surrogates: dict, eps: dict, episodes: int,
+                    sweep_episodes: int, sweep_attacks: list[str], scales: list[float], horizon: int
+                    ) -> list[tuple[Key, dict]]:
     """Every evaluation of every policy, with the arguments of :class:`aril_ros.evaluation.EvalConfig`:
-    clean and under each threat at the calibrated eps (the tables), the sweep attacks at ``scales`` times
-    it (the sweeps); ARIL-A only where an adversary was had. Episodes start at the defense table's seeds."""
+    clean and under each threat at the calibrated eps (the tables), DAgger under the black-box rows too, the sweep
+    attacks at ``scales`` times it (the sweeps); ARIL-A only where an adversary was had, the transfer attack where a
+    surrogate was. Episodes start at the defense table's seeds."""
     plan = []
     for (defense, env, mode, seed), policy in policies.items():
         if policy is None:
             continue
         adversary = adversaries[(defense, env, mode, seed)]
+        surrogate = surrogates.get((defense, env, mode, seed))
         points = [("none", 0.0, episodes)] + [(t, 1.0, episodes) for t in THREATS]
+        points += [(a, 1.0, episodes) for a in BLACK_BOX_ROWS if defense == "dagger"]
         points += [(a, s, sweep_episodes) for a in sweep_attacks for s in scales]
-        for attack, scale, n in points:
-            if attack == "aril_a" and adversary is None:
+        for row, scale, n in points:
+            attack = "aril_a" if row == "aril_a_search" else row
+            attack_file = {"aril_a": adversary, "transfer": surrogate}.get(attack, "")
+            if attack_file is None:
                 continue
-            plan.append((Key(env, mode, defense, attack, scale, seed),
-                         {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
-                          "attack": attack, "eps": round(scale * eps[env, mode], 6),
-                          "attack_file": str(adversary) if attack == "aril_a" else "",
-                          "rescale": attack == "aril_a", "episodes": n, "seed": seeds.DEFENSE_TABLE,
-                          "horizon": horizon}))
+            job = {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
+                   "attack": attack, "eps": round(scale * eps[env, mode], 6), "attack_file": str(attack_file),
+                   "rescale": attack == "aril_a", "episodes": n, "seed": seeds.DEFENSE_TABLE, "horizon": horizon}
+            if row == "aril_a_search":  # only here: the other jobs' cache keys stay as they were
+                job["search"] = TABLE_SEARCH
+            plan.append((Key(env, mode, defense, row, scale, seed), job))
     return plan
 
 

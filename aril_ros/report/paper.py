@@ -11,10 +11,15 @@ PAPER_ENV = _per_env("HalfCheetah-v2", "Ant-v2", "Swimmer-v2")
 """The env each of ours stands in for."""
 PAPER_OBS_DIM = _per_env(17, 111, 8)
 """Observation sizes of the paper's -v2 envs."""
+BLACK_BOX_ROWS = ("transfer", "aril_a_search")
+"""Attacks on DAgger beyond the paper's: the black-box verdict pipeline's strongest (issue 38), FGSM^k on a surrogate
+fitted to DAgger's answers and ARIL-A with query-time search. DAgger alone meets them: a defense's worst case stays
+the worst of ``registry.THREATS``, as the paper's."""
 TABLE_ROWS = (("dagger", "none"), ("dagger", "fgsm"), ("dagger", "fgsm_k"), ("dagger", "aril_a"),
+              *(("dagger", attack) for attack in BLACK_BOX_ROWS),
               ("gail", "worst"), ("dr", "worst"), ("dart", "worst"), ("aril", "worst"))
-"""The rows of the paper's Tables 1 and 2: DAgger clean and under each attack (Adversary), then each
-defense under its worst attack (Robust IL)."""
+"""The rows of the paper's Tables 1 and 2: DAgger clean and under each attack (Adversary; the paper's three, then
+:data:`BLACK_BOX_ROWS`), then each defense under its worst attack (Robust IL)."""
 # The paper's Tables 1 and 2 (v2 envs): return and drop from its clean DAgger; rows it does not report are absent.
 PAPER = {
     "sensory": {

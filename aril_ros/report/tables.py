@@ -2,12 +2,14 @@
 figure beside the paper's, and the overall drop per row."""
 from __future__ import annotations
 
-from ..registry import ATTACKS, DEFENSES
-from .paper import PAPER, PAPER_ENV, PAPER_OVERALL, TABLE_ROWS
+from ..registry import ATTACKS, DEFENSES, SCORECARD_ATTACKS
+from .paper import BLACK_BOX_ROWS, PAPER, PAPER_ENV, PAPER_OVERALL, TABLE_ROWS
 from .stats import summarise, worst_attack
 
 DAGGER_ATTACKS = tuple(a for d, a in TABLE_ROWS if d == "dagger" and a != "none")
-"""The attacks on DAgger the tables show as rows of their own (the paper's Adversary rows)."""
+"""The attacks on DAgger the tables show as rows of their own (the Adversary rows)."""
+PAPER_ATTACKS = tuple(a for a in DAGGER_ATTACKS if a not in BLACK_BOX_ROWS)
+"""The paper's Adversary rows: DAgger's worst case among them is the undefended baseline, as in the paper."""
 
 
 def table_cells(evals: dict, env: str, mode: str) -> dict:
@@ -39,7 +41,7 @@ def _fmt_paper(mode: str, row: tuple, env: str) -> str:
 def row_label(row: tuple) -> str:
     defense, attack = row
     if defense == "dagger":
-        return "DAgger, clean" if attack == "none" else f"{ATTACKS[attack]} (on DAgger)"
+        return "DAgger, clean" if attack == "none" else f"{SCORECARD_ATTACKS[attack]} (on DAgger)"
     return DEFENSES[defense]
 
 
