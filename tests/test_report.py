@@ -227,3 +227,13 @@ def test_the_text_names_each_round_adversary_budget_once_with_its_runs():
     assert _budgets(curves) == ("500,000 steps per round, warm-started from the previous round's adversary: "
                                 "Ant-v5 sensory, Ant-v5 physical; 1,000,000 steps per round, fresh each round, "
                                 "the strongest of 3: Swimmer-v5 physical")
+
+
+def test_the_report_runs_only_performance_benchmarks_with_its_own_arguments():
+    """aril report's performance section runs every registered benchmark, one it has no arguments for with none: each
+    benchmark this package registers must be one it knows (the verdict benchmark, hours of attacks, ran so once)."""
+    from aril_ros import plugins
+    from aril_ros.report.perf import GROUP, arguments
+
+    ours = {name for name in plugins.names(GROUP) if plugins.value(GROUP, name).startswith(("aril_ros", "benchmarks."))}
+    assert ours == set(arguments(1000))
