@@ -318,7 +318,7 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     try:
         page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env=env_id, modes="sensory,physical",
                                          episodes=2, horizon=20, adversary_steps=2048, scales="1",
-                                         attacks=",".join(rows),
+                                         attacks=",".join(rows), workers=1,  # trainings of seconds: no Ray for them
                                          out=str(tmp_path / "card")), log=lambda *a, **k: None)
     finally:
         stop(node)
