@@ -11,9 +11,9 @@ SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k o
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
 against the surrogate from it (or that one, where it takes more from the surrogate), alone and with query-time
 search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of
-them is the verdict (AutoAttack's rule: no knob a user could set to a soft verdict). eps is the calibrated one for the env and mode unless ``eps:=`` sets it. A bundled name
-trained per attack mode (dr, aril) is another file in each mode, each with a clean cell of its own (a drop compares
-the same policy clean and attacked).
+them is the verdict (AutoAttack's rule: no knob a user could set to a soft verdict). eps is the calibrated one for
+the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is another file in each
+mode, each with a clean cell of its own (a drop compares the same policy clean and attacked).
 
 A policy file or a bundled name is scored on the in-process engine, its cells as sweep tasks (:mod:`aril_ros.sweep`:
 ``workers`` CPUs of a local Ray, or a cluster at ``address``), after its black-box pipeline; with ``via:=graph`` each

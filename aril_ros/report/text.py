@@ -38,9 +38,9 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                 target = strongest if attacks["aril_a"] <= attacks[best_other] else weaker
                 target.append(f"{env} ({attacks['aril_a']:+.1f}% vs {ATTACKS[best_other]} "
                               f"{attacks[best_other]:+.1f}%)")
-            blind = [a for a in ("aril_a", *BLACK_BOX_ROWS) if a in attacks]
-            if blind and "fgsm_k" in attacks:
-                best = min(blind, key=lambda a: attacks[a])
+            asking = [a for a in ("aril_a", *BLACK_BOX_ROWS) if a in attacks]  # the black-box rows evaluated
+            if asking and "fgsm_k" in attacks:
+                best = min(asking, key=lambda a: attacks[a])
                 black_box.append((attacks[best] <= attacks["fgsm_k"], f"{env} {SCORECARD_ATTACKS[best]} "
                                   f"{attacks[best]:+.1f}% vs {attacks['fgsm_k']:+.1f}%"))
             defenses = {d: row.get((d, "worst")) for d in PAPER_DEFENSES if d != "dagger"}
@@ -59,11 +59,13 @@ def comparison(payload: dict, cells: dict) -> list[str]:
         side_by_side = [f"{SCORECARD_ATTACKS[a] if d == 'dagger' else DEFENSES[d]} {overall[f'{d} {a}']:+.1f}% "
                         f"({'—' if (p := PAPER_OVERALL[mode].get((d, a))) is None else f'{p:+.1f}%'})"
                         for d, a in TABLE_ROWS[1:] if overall.get(f"{d} {a}") is not None]
-        blind = (f"The strongest black-box attack (ARIL-A, ARIL-A + search or FGSM^k on a surrogate) takes at "
-                 f"least as much as white-box FGSM^k in {sum(ok for ok, _ in black_box)} of {len(black_box)} envs: "
-                 f"{_list([text for _, text in black_box])}. " if black_box else "")
+        against_white_box = (
+            f"The strongest black-box attack (ARIL-A, ARIL-A + search or FGSM^k on a surrogate) takes at least as much "
+            f"as white-box FGSM^k in {sum(ok for ok, _ in black_box)} of {len(black_box)} envs: "
+            f"{_list([text for _, text in black_box])}. " if black_box else "")
         lines += [f"**{mode.capitalize()} attacks.** ARIL-A is the strongest attack on DAgger in {_list(strongest)}; "
-                  f"weaker than the best gradient attack in {_list(weaker)} (the paper: strongest in all three). {blind}"
+                  f"weaker than the best gradient attack in {_list(weaker)} (the paper: strongest in all three). "
+                  f"{against_white_box}"
                   f"Most robust defense under its worst attack: {_list(most_robust)}. ARIL's rank: {_list(aril_rank)} "
                   f"(the paper: first everywhere). ARIL's overall drop: "
                   f"{'—' if aril_overall is None else f'{aril_overall:+.1f}%'} "
