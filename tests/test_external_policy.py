@@ -42,59 +42,6 @@ def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, lis
     assert (summary["queries_per_step"] > 0) == (attack == "spsa")
 
 
-LONG = os.environ.get("ARIL_LONG_TESTS") == "1"
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("shortened", [
-    dict(episodes=1, adversary_steps=2048, horizon=40, scales="1"),
-    pytest.param({}, marks=pytest.mark.skipif(not LONG, reason="the quick budget unshortened: "
-                                              "ARIL_LONG_TESTS=1 python run_tests.py -k quick_budget")),
-], ids=["shortened", "unshortened"])
-def test_the_documented_node_passes_the_scorecards_quick_budget(shortened, tmp_path):
-    """The node as the doc gives it, scored by ``aril scorecard policy:=external budget:=quick``: both modes, the
-    quick budget's black-box rows through the graph (a surrogate fitted to its answers, ARIL-A trained against that
-    surrogate), each cell on the same seeds; ARIL-A + search asks its questions per step as probes, and the steps are
-    the node's answers to the observations stepped on. The default suite runs the quick budget with fewer and shorter episodes
-    and a shorter adversary training."""
-    from aril_ros.scorecard import BUDGETS, QUICK_ROWS, ScorecardConfig, scorecard
-    from aril_ros.verdict import SEARCH
-
-    budget = BUDGETS["quick"]
-    domain = free_domain()
-    node = start_node(documented_node(), domain, tmp_path, "-p", "act_dim:=6")
-    try:
-        page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env="HalfCheetah-v5", budget="quick",
-                                         keep_logs=True, out=str(tmp_path / "card"), **shortened),
-                         log=lambda *a, **k: None)
-    finally:
-        stop(node)
-    assert processes_in_domain(domain) == []
-    card = json.loads((tmp_path / "card" / "scorecard.json").read_text())
-    episodes, horizon = shortened.get("episodes", budget.episodes), shortened.get("horizon", 1000)
-    seeds = [card["settings"]["seed"] + i for i in range(episodes)]
-    assert list(card["modes"]) == ["sensory", "physical"]
-    for mode, result in card["modes"].items():
-        assert list(result["attacks"]) == list(QUICK_ROWS[mode])  # the quick budget's black-box rows
-        for attack, sweep in result["attacks"].items():
-            for cell in sweep.values():
-                assert [e["env_seed"] for e in cell["episodes"]] == seeds
-                assert {e["steps"] for e in cell["episodes"]} == {horizon}
-        # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more: all probes in the log
-        for attack, asked in (("aril_a", 1), ("aril_a_search", SEARCH + 2)):
-            if attack not in result["attacks"]:
-                continue
-            search = f"-search{SEARCH}" if attack == "aril_a_search" else ""
-            log = f"{mode}-aril_a-adversary-{mode}{search}-{result['eps']:g}.mcap"
-            run = read_run(tmp_path / "card" / "logs" / log)
-            assert set(run.probes_per_step) == {result["attacks"][attack]["1.0"]["queries_per_step"]} == {asked}
-            np.testing.assert_array_equal(run.action, np.tanh(run.obs[:, :6]))  # no probe's answer was stepped on
-        assert (tmp_path / "card" / f"sweep-{mode}.png").stat().st_size > 0
-        at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}
-        assert result["worst"]["attack"] == min(at_eps, key=at_eps.get)
-    assert "## physical" in page.read_text()
-
-
 @pytest.mark.slow
 def test_training_against_the_documented_node_alone_names_its_listeners(tmp_path):
     """aril train-adversary victim:=ros asks the node with one listener on action: the doc's node, waiting for 2
@@ -300,47 +247,86 @@ def runs_answered(tags: list[str]) -> list[tuple[int, int]]:
     return [tuple(run) for run in runs]
 
 
-@pytest.mark.slow
-def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(tmp_path):
-    """A node of the user's own (not aril_ros's MLPPolicy: another depth, activations and normalisation) scored by
-    ``aril scorecard policy:=external`` in both modes: every row of the black-box pipeline has its figure, and the
-    node answered exactly what the scorecard says it was asked: each run's steps (the clean one's too), each cell's
-    questions, and each mode's surrogate's questions (asked after the clean run, before the first cell's). The zoo's
-    row asks as the ARIL-A row does, with another file, and SPSA^k's questions are counted in test_scorecard."""
-    from aril_ros.scorecard import PIPELINE_ATTACKS, ScorecardConfig, scorecard
+@pytest.fixture(scope="module")
+def another_architectures_card(tmp_path_factory):
+    """``aril scorecard policy:=external budget:=quick`` against a node of the user's own (not aril_ros's MLPPolicy:
+    another depth, activations and normalisation), shortened: both modes, the quick budget's black-box rows through
+    the graph, 2 episodes of 20 steps, a 2048-step ARIL-A trained in process (workers:=1: no Ray for seconds-long
+    trainings). Returns the scorecard's folder, its JSON and page, the frame_id of every observation the node
+    answered, in order, and the node's policy."""
+    from aril_ros.scorecard import ScorecardConfig, scorecard
 
-    rows = tuple(a for a in PIPELINE_ATTACKS if a != "zoo")
+    tmp_path = tmp_path_factory.mktemp("another-architecture")
     env_id, layout = "Swimmer-v5", layout_of("Swimmer-v5")
     answered = tmp_path / "answered.txt"
     domain = free_domain()
     node = start_node(another_architectures_node(), domain, tmp_path, "-p", f"obs_dim:={layout.obs_dim}",
                       "-p", f"act_dim:={layout.act_dim}", "-p", f"answered:={answered}")
     try:
-        page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env=env_id, modes="sensory,physical",
-                                         episodes=2, horizon=20, adversary_steps=2048, scales="1",
-                                         attacks=",".join(rows), workers=1,  # trainings of seconds: no Ray for them
+        page = scorecard(ScorecardConfig(policy="external", domain=str(domain), env=env_id, budget="quick",
+                                         episodes=2, horizon=20, adversary_steps=2048, keep_logs=True, workers=1,
                                          out=str(tmp_path / "card")), log=lambda *a, **k: None)
     finally:
         stop(node)
     assert node.returncode == 0 and processes_in_domain(domain) == []
+    namespace = {"np": np}
+    exec(ANOTHER_ARCHITECTURE, namespace)
     card = json.loads((tmp_path / "card" / "scorecard.json").read_text())
-    text = page.read_text()
+    return (tmp_path / "card", card, page.read_text(), answered.read_text().splitlines(),
+            namespace["ThreeLayers"](layout.obs_dim, layout.act_dim))
+
+
+@pytest.mark.slow
+def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes_answer(another_architectures_card):
+    """The quick budget through the graph: each mode's black-box rows, each cell on the same seeds; ARIL-A (+ search)
+    asks its questions per step as probes, all in the run's log, and the steps are the node's answers to the
+    observations stepped on. The quick budget unshortened is measured in docs/scoring.md."""
+    from aril_ros.scorecard import QUICK_ROWS
+    from aril_ros.verdict import SEARCH
+
+    folder, card, text, _, policy = another_architectures_card
+    seeds = [card["settings"]["seed"] + i for i in range(2)]
+    assert list(card["modes"]) == ["sensory", "physical"]
+    for mode, result in card["modes"].items():
+        assert list(result["attacks"]) == list(QUICK_ROWS[mode])
+        for attack, sweep in result["attacks"].items():
+            for cell in sweep.values():
+                assert [e["env_seed"] for e in cell["episodes"]] == seeds
+                assert {e["steps"] for e in cell["episodes"]} == {20}
+        # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more: all probes in the log
+        for attack, asked in (("aril_a", 1), ("aril_a_search", SEARCH + 2)):
+            if attack not in result["attacks"]:
+                continue
+            search = f"-search{SEARCH}" if attack == "aril_a_search" else ""
+            run = read_run(folder / "logs" / f"{mode}-aril_a-adversary-{mode}{search}-{result['eps']:g}.mcap")
+            assert set(run.probes_per_step) == {result["attacks"][attack]["1.0"]["queries_per_step"]} == {asked}
+            # no probe's answer was stepped on: the node's own answer to each observation (one at a time, as it is asked)
+            np.testing.assert_array_equal(run.action, [policy(obs) for obs in run.obs])
+        assert (folder / f"sweep-{mode}.png").stat().st_size > 0
+        at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}
+        assert result["worst"]["attack"] == min(at_eps, key=at_eps.get)
+        assert f"## {mode}," in text
+
+
+@pytest.mark.slow
+def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
+    """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
+    was asked: each run's steps (the clean one's too), each cell's questions, and each mode's surrogate's questions
+    (asked after the clean run, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
+    file, and SPSA^k's questions are counted in test_scorecard."""
+    _, card, _, tags, _ = another_architectures_card
     cells = []
     for mode, result in card["modes"].items():
-        assert list(result["attacks"]) == list(rows)
         for attack, sweep in result["attacks"].items():
             cell = sweep["1.0"]
             assert np.isfinite(cell["mean_return"]) and [e["steps"] for e in cell["episodes"]] == [20, 20]
             cells.append(cell)
         assert result["surrogate_queries"] > 0 and np.isfinite(result["worst"]["drop_pct"])
         per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in result["attacks"].items()}
-        assert per_step["transfer"] == 0 and per_step["aril_a"] == 1
-        assert per_step["aril_a_search"] == per_step["aril_a"] + 9
-        assert f"## {mode}," in text
+        assert per_step == {"sensory": {"transfer": 0, "aril_a_search": 10}, "physical": {"aril_a": 1}}[mode]
     steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
     surrogates = sum(result["surrogate_queries"] for result in card["modes"].values())
     clean = card["modes"]["sensory"]["clean"]
-    tags = answered.read_text().splitlines()
     assert len(tags) == steps(clean) + sum(steps(cell) + cell["queries"] for cell in cells) + surrogates
     expected = [(steps(clean), 0)] + [(steps(cell), cell["queries"]) for cell in cells]
     expected[1] = (expected[1][0], expected[1][1] + surrogates)
