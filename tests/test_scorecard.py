@@ -291,7 +291,7 @@ def test_an_env_without_bundled_adversaries_is_scored_without_a_zoo(tmp_path, mo
     import aril_ros.verdict
 
     monkeypatch.setattr(aril_ros.verdict, "ZOO_FOLDERS", (tmp_path / "no-adversaries",))
-    cfg = ScorecardConfig(policy="dagger", out=str(tmp_path / "card"), **{**SMALL, "attacks": "zoo,aril_a"})
+    cfg = ScorecardConfig(policy="dagger", out=str(tmp_path / "card"), workers=1, **{**SMALL, "attacks": "zoo,aril_a"})
     page = scorecard(cfg, log=lambda *a, **k: None)
     sensory = json.loads((tmp_path / "card" / "scorecard.json").read_text())["modes"]["sensory"]
     assert list(sensory["attacks"]) == ["aril_a"] and sensory["zoo"] is None and sensory["zoo_screened"] == []

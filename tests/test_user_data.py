@@ -68,7 +68,7 @@ def test_trainers_write_to_the_user_folder_never_into_the_package(user_data):
         ["train-expert", "env:=Hopper-v5", "steps:=300", "eval_every:=300", "eval_episodes:=1"],
         ["train-bc", "env:=Hopper-v5", "episodes:=1", "epochs:=1"],
         ["calibrate-eps", "envs:=Hopper-v5", "modes:=sensory", "policy:=bc", "grid:=0.01", "episodes:=1",
-         "horizon:=20"],
+         "horizon:=20", "workers:=1"],
     ]
     for command in commands:
         done = subprocess.run([sys.executable, "-m", "aril_ros", *command], env=env, capture_output=True, text=True,
