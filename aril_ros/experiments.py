@@ -29,20 +29,19 @@ from .args import arg, comma_list
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
 from .provenance import portable, stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, TABLE_SEARCH, THREATS,
-                       adversary_path, bundled_file, calibrated_eps, surrogate_path, user_calibration)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_ROW,
+                       TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack, surrogate_path,
+                       user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
 from .verdict import ready_surrogate
 
-SEARCH_ROW = "aril_a_search"
-"""ARIL-A with query-time search: a row of the attack tables, the attack aril_a with ``search:=K``."""
 TRANSFER_ROW = "transfer"
 """FGSM^k on a surrogate fitted to the victim's answers (:func:`aril_ros.verdict.ready_surrogate`): black-box, and
 the one attack that asks the victim nothing while it runs."""
 ATTACK_ROWS = ("none", *THREATS, TRANSFER_ROW, SEARCH_ROW)
 """The rows of the attack tables: clean, then each attack."""
-ROW_NAMES = {**ATTACKS, SEARCH_ROW: "ARIL-A + search"}
+ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW]}
 
 
 def _cell(result: dict) -> dict:
@@ -226,7 +225,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                                       steps=cfg.adversary_steps, out=str(adversary)))
         files = {"aril_a": adversary, TRANSFER_ROW: surrogates[env]}
         for row in rows_of:
-            attack = "aril_a" if row == SEARCH_ROW else row
+            attack = row_attack(row)
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                           eps=0.0 if attack == "none" else eps, k=cfg.k,
@@ -240,7 +239,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     for env, adversary in adversaries.items():
         cells = {}
         for row in rows_of:
-            attack = "aril_a" if row == SEARCH_ROW else row
+            attack = row_attack(row)
             result = next(results)
             cell = _cell(result)
             clean = cells["none"]["mean"] if attack != "none" else cell["mean"]

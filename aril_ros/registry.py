@@ -38,9 +38,17 @@ ATTACKED_MODES = ("sensory", "physical")
 ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "spsa": "SPSA^k",
            "aril_a": "ARIL-A", "transfer": "FGSM^k on a surrogate"}
 """Every attack by name, with the name tables print."""
-SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", "aril_a_search": "ARIL-A + search"}
+SEARCH_ROW = "aril_a_search"
+"""A row of the tables and the scorecard: aril_a with query-time search (``search:=K`` candidates a step)."""
+SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search"}
 """What a scorecard's rows name: the attacks, and two ways its black-box pipeline runs aril_a (an adversary of the
 zoo as it is; its own with query-time search)."""
+
+
+def row_attack(row: str) -> str:
+    """The attack a table's or a scorecard's row runs: aril_a for the zoo's row and ARIL-A + search, which differ
+    from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
+    return "aril_a" if row in ("zoo", SEARCH_ROW) else row
 SURROGATE_ATTACKS = ("transfer",)
 """Black-box attacks that compute on a surrogate of the victim (``attack_file``), never asking the victim."""
 TABLE_SEARCH = 16

@@ -74,6 +74,7 @@ from .provenance import stamp
 from .registry import (
     ATTACKED_MODES,
     SCORECARD_ATTACKS,
+    SEARCH_ROW,
     DEFAULT_ENV,
     MAX_EPS,
     PER_MODE_POLICIES,
@@ -81,6 +82,7 @@ from .registry import (
     bundled_file,
     calibrated_eps,
     check_name,
+    row_attack,
 )
 from .report.plots import plot_scorecard_sweep
 from .report.stats import paired_drop, worst_attack
@@ -277,12 +279,12 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
     the budget's queries (the other attacks keep their own settings: fgsm_k's k is not SPSA's)."""
     spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
     files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
-             "aril_a_search": made and made.adversary}
-    learned = attack in ("zoo", "aril_a", "aril_a_search")
+             SEARCH_ROW: made and made.adversary}
+    learned = row_attack(attack) == "aril_a"
     return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode,
-                      attack="aril_a" if learned else attack, eps=eps,
+                      attack=row_attack(attack), eps=eps,
                       attack_file=str(files[attack]) if attack in files else "", rescale=learned,
-                      search=SEARCH if attack == "aril_a_search" else 0, episodes=budget.episodes, seed=cfg.seed,
+                      search=SEARCH if attack == SEARCH_ROW else 0, episodes=budget.episodes, seed=cfg.seed,
                       horizon=cfg.horizon, **spsa)
 
 

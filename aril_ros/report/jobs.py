@@ -17,7 +17,7 @@ from ..evaluation import evaluation_task, shipped_job
 from ..files import write_atomically
 from ..policy import PolicyFileError
 from ..provenance import cpu, portable
-from ..registry import TABLE_SEARCH, THREATS
+from ..registry import SEARCH_ROW, TABLE_SEARCH, THREATS, row_attack
 from ..sweep import run_tasks
 from .paper import BLACK_BOX_ROWS
 
@@ -58,14 +58,14 @@ def evaluation_plan(policies: dict, adversaries: dict, surrogates: dict, eps: di
         points += [(a, 1.0, episodes) for a in BLACK_BOX_ROWS if defense == "dagger"]
         points += [(a, s, sweep_episodes) for a in sweep_attacks for s in scales]
         for row, scale, n in points:
-            attack = "aril_a" if row == "aril_a_search" else row
+            attack = row_attack(row)
             attack_file = {"aril_a": adversary, "transfer": surrogate}.get(attack, "")
             if attack_file is None:
                 continue
             job = {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
                    "attack": attack, "eps": round(scale * eps[env, mode], 6), "attack_file": str(attack_file),
                    "rescale": attack == "aril_a", "episodes": n, "seed": seeds.DEFENSE_TABLE, "horizon": horizon}
-            if row == "aril_a_search":  # only here: the other jobs' cache keys stay as they were
+            if row == SEARCH_ROW:  # only here: the other jobs' cache keys stay as they were
                 job["search"] = TABLE_SEARCH
             plan.append((Key(env, mode, defense, row, scale, seed), job))
     return plan
