@@ -49,6 +49,8 @@ def row_attack(row: str) -> str:
     """The attack a table's or a scorecard's row runs: aril_a for the zoo's row and ARIL-A + search, which differ
     from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
     return "aril_a" if row in ("zoo", SEARCH_ROW) else row
+
+
 SURROGATE_ATTACKS = ("transfer",)
 """Black-box attacks that compute on a surrogate of the victim (``attack_file``), never asking the victim."""
 TABLE_SEARCH = 16

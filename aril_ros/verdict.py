@@ -73,14 +73,6 @@ class BlackBoxAttacks:
     surrogate (None without a zoo)"""
 
 
-def black_box_attacks(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-                      domain: str = "", log=print, horizon: int = HORIZON, refines: int = 1,
-                      leave_out: str = "") -> BlackBoxAttacks:
-    """The pipeline of one mode (:func:`pipeline`), its trainings in this process."""
-    return run_pipelines([pipeline(victim_name, env_id, mode, eps, expert, steps, folder, domain, log, horizon,
-                                   refines, leave_out)], log)[0]
-
-
 def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
     """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for an adversary's training,
     and the trainings all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the cluster at

@@ -20,7 +20,7 @@ from aril_ros.policy import load_policy, load_weights, policy_file, resolve_poli
 from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, calibrated_eps
 from aril_ros.rollout import RolloutEngine
 from aril_ros.surrogate import SurrogateConfig, fit_surrogate
-from aril_ros.verdict import SEARCH, black_box_attacks, victim_digest, zoo_members
+from aril_ros.verdict import SEARCH, victim_digest, zoo_members
 from tests.conftest import AnswersOnly, local_ray
 
 ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
@@ -33,8 +33,13 @@ def quiet(*args, **kwargs):
     pass
 
 
+def one_pipeline(*args, **kwargs):
+    """One mode's black-box pipeline (:func:`aril_ros.verdict.pipeline`), its trainings in this process."""
+    return verdict.run_pipelines([verdict.pipeline(*args, **kwargs)], quiet)[0]
+
+
 def run_pipeline(folder, eps: float = EPS):
-    """black_box_attacks on the bundled DAgger, the policy seen through :class:`AnswersOnly` (its act alone, its
+    """The pipeline on the bundled DAgger, the policy seen through :class:`AnswersOnly` (its act alone, its
     questions counted): what it made, and the black boxes it asked."""
     boxes = []
 
@@ -44,7 +49,7 @@ def run_pipeline(folder, eps: float = EPS):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "Answers", answers_only)
-        made = black_box_attacks("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON)
+        made = one_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON)
     return made, boxes
 
 
@@ -242,8 +247,8 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
     folder = tmp_path / "as-node"
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "answering", lambda name, env, mode, domain: AsNode(name))
-        made = black_box_attacks("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
-                                 leave_out="dagger")
+        made = one_pipeline("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
+                            leave_out="dagger")
     screened = {member for _, member in made.screened}
     assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own)}
 
