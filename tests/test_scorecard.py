@@ -128,7 +128,8 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert sorted(member for _, member in screened) == sorted(relative(member) for member in others)
     fidelity = made["fidelity"]
     assert (f"Surrogate `{sensory['surrogate']}`: {made['queries']:,} questions to the policy, held-out error "
-            f"{fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}); zoo: `{sensory['zoo']}`, the strongest of "
+            f"{fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}, inside the ±eps box {fidelity['local_r2']:.4f}); zoo: "
+            f"`{sensory['zoo']}`, the strongest of "
             f"{len(screened)} against the surrogate") in text
     kept, returns = sensory["adversary_kept"]["kept"], sensory["adversary_kept"]["mean_return"]
     assert kept == min(returns, key=returns.get)  # the aril_a rows run the one that took more from the surrogate
