@@ -53,7 +53,7 @@ class SurrogateConfig:
     probes: int = arg(3, "extra questions per visited observation, at points of the ±eps box around it",
                       low=1, high=1000)
     hidden: int = arg(256, "width of the surrogate's two hidden layers", low=1, high=4096)
-    updates: int = arg(7_500, "Adam updates at most (the fit's time: about 40 s on one core for 256 wide)",
+    updates: int = arg(7_500, "Adam updates at most (the fit's time: 40-60 s on one core for 256 wide)",
                        low=1, high=10_000_000)
     epochs: int = arg(200, "passes over the answers at most (a small data set stops here, long before the updates)",
                       low=1, high=10_000)
@@ -164,7 +164,9 @@ def fit(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray, cfg: S
     """Regress the grouped ``answers`` on ``questions``: the squared error of each answer plus ``cfg.local`` times
     that of each probe's variation from its visited observation's answer; Adam from ``cfg.lr`` decayed to zero along
     a cosine, ``cfg.batch`` visited observations (with their probes) an update, ``cfg.updates`` updates or
-    ``cfg.epochs`` passes, whichever is fewer; on one thread (these small layers run fastest on one)."""
+    ``cfg.epochs`` passes, whichever is fewer. On one thread, whatever the caller set: a fit's bits depend on the
+    thread count, and the copy must be the same file whoever asks (a file and the node serving it get one verdict);
+    on two idle cores it would take about 30% less time."""
     x, y = torch.as_tensor(questions, dtype=torch.float32), torch.as_tensor(answers, dtype=torch.float32)
     updates = min(cfg.updates, cfg.epochs * -(-len(x) // cfg.batch))
     gen = torch.Generator().manual_seed(cfg.seed)
