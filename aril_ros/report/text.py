@@ -259,9 +259,8 @@ def pipeline_lines(mode_result: dict) -> list[str]:
         return []
     fidelity = mode_result["surrogate_fidelity"]
     return [f"Surrogate `{mode_result['surrogate']}`: {mode_result['surrogate_queries']:,} questions to the policy, "
-            f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}"
-            # local R^2 since pipeline 3, whose surrogate is fitted to the policy's variation inside the box too
-            + (f", inside the ±eps box {fidelity['local_r2']:.4f}" if "local_r2" in fidelity else "") + "); "
+            f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}, inside the ±eps box "
+            f"{fidelity['local_r2']:.4f}); "
             + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
                "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
             + f"ARIL-A: `{mode_result['adversary']}`" + kept_line(mode_result.get("adversary_kept")) + ".", ""]
