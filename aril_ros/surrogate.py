@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -91,24 +92,45 @@ def fit_answers(questions: np.ndarray, answers: np.ndarray, env_id: str, cfg: Su
                 out: str | Path, log=print, started: float | None = None) -> Path:
     """Steps 3 and 4: the surrogate fitted to the grouped ``answers`` and judged on a tenth of the visited
     observations held out (with their probes), written to ``out`` with ``made`` (what it copies, and how) in its
-    provenance."""
+    provenance, and reported in ``log`` (None: not at all)."""
     started = time.time() if started is None else started
     rng = np.random.default_rng(cfg.seed)
     held_out = rng.permutation(len(questions))[: len(questions) // 10]
     train = np.setdiff1d(np.arange(len(questions)), held_out)
-    torch.manual_seed(cfg.seed)  # the initial weights
     rows = questions.reshape(-1, questions.shape[-1])
-    surrogate = MLPPolicy(meta_for_env(env_id, hidden=[cfg.hidden, cfg.hidden], activation="tanh", squash="tanh",
-                                       obs_mean=rows.mean(0).tolist(), obs_std=(rows.std(0) + 1e-6).tolist()))
-    fit(surrogate, questions[train], answers[train], cfg)
-    fidelity = judge(surrogate, questions[held_out], answers[held_out])
+    with one_thread():
+        torch.manual_seed(cfg.seed)  # the initial weights
+        surrogate = MLPPolicy(meta_for_env(env_id, hidden=[cfg.hidden, cfg.hidden], activation="tanh", squash="tanh",
+                                           obs_mean=rows.mean(0).tolist(), obs_std=(rows.std(0) + 1e-6).tolist()))
+        fit(surrogate, questions[train], answers[train], cfg)
+        fidelity = judge(surrogate, questions[held_out], answers[held_out])
     surrogate.meta.provenance = {**stamp("aril fit-surrogate", cfg), "algorithm": "surrogate", **made,
                                  "answers": int(len(rows)), "fidelity": fidelity,
                                  "seconds": round(time.time() - started, 1)}
     path = save_policy(surrogate, out)
-    log(f"[surrogate] {path}: {made['queries']:,} questions to the victim, held-out error {fidelity['mse']:.4f} "
-        f"(R^2 {fidelity['r2']:.4f}, inside the box {fidelity['local_r2']:.4f}), {time.time() - started:.0f} s")
+    if log:
+        log(summary(path, surrogate.meta.provenance))
     return path
+
+
+def summary(path: Path, made: dict) -> str:
+    """The line that reports a surrogate at ``path`` made as its provenance ``made`` says."""
+    fidelity = made["fidelity"]
+    return (f"[surrogate] {path}: {made['queries']:,} questions to the victim, held-out error {fidelity['mse']:.4f} "
+            f"(R^2 {fidelity['r2']:.4f}, inside the box {fidelity['local_r2']:.4f}), {made['seconds']:.0f} s")
+
+
+@contextmanager
+def one_thread():
+    """Torch on one thread inside, whatever the caller set: a fit's bits depend on the thread count, and the copy
+    must be the same file whoever asks and wherever it runs (a file and the node serving it get one verdict; a
+    sweep task's worker has its own count). Two fits run side by side instead (:func:`aril_ros.verdict.run_pipelines`)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: int = HORIZON, attack=None,
@@ -164,16 +186,12 @@ def fit(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray, cfg: S
     """Regress the grouped ``answers`` on ``questions``: the squared error of each answer plus ``cfg.local`` times
     that of each probe's variation from its visited observation's answer; Adam from ``cfg.lr`` decayed to zero along
     a cosine, ``cfg.batch`` visited observations (with their probes) an update, ``cfg.updates`` updates or
-    ``cfg.epochs`` passes, whichever is fewer. On one thread, whatever the caller set: a fit's bits depend on the
-    thread count, and the copy must be the same file whoever asks (a file and the node serving it get one verdict);
-    on two idle cores it would take about 30% less time."""
+    ``cfg.epochs`` passes, whichever is fewer. Its caller holds torch to :func:`one_thread`."""
     x, y = torch.as_tensor(questions, dtype=torch.float32), torch.as_tensor(answers, dtype=torch.float32)
     updates = min(cfg.updates, cfg.epochs * -(-len(x) // cfg.batch))
     gen = torch.Generator().manual_seed(cfg.seed)
     optimizer = torch.optim.Adam(surrogate.parameters(), lr=cfg.lr)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda done: 0.5 * (1 + math.cos(math.pi * done / updates)))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     surrogate.train()
     try:
         done = 0
@@ -189,7 +207,6 @@ def fit(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray, cfg: S
                 done += 1
     finally:
         surrogate.eval()
-        torch.set_num_threads(threads)
 
 
 def judge(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray) -> dict:

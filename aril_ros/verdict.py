@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,10 +43,11 @@ from .envs import HORIZON, layout_of
 from .policy import load_policy, policy_file, resolve_policy
 from .protocol import ros_domain
 from .provenance import portable
-from .registry import ATTACKED_MODES, DATA_DIR, DEFAULT_ENV, DEFENSES, MAX_EPS, bundled_file, calibrated_eps, check_name
+from .registry import (ATTACKED_MODES, DATA_DIR, DEFAULT_ENV, DEFENSES, MAX_EPS, bundled_file, calibrated_eps, check_name,
+                       for_task)
 from .rollout import RolloutEngine
-from .surrogate import SurrogateConfig, fit_answers, fit_surrogate, gather
-from .sweep import digest_of
+from .surrogate import SurrogateConfig, fit_answers, fit_surrogate, gather, summary
+from .sweep import Produced, Shipped, digest_of, run_tasks, shipped
 
 SEARCH = 8
 """Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
@@ -75,17 +77,28 @@ class BlackBoxAttacks:
     surrogate (None without a zoo)"""
 
 
-def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
-    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for an adversary's training,
-    and the trainings all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the cluster at
-    ``address``); the questions to the policy stay one pipeline at a time. Two modes train on two CPUs in the time
-    of one."""
-    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
-    asked: dict[int, AdversaryConfig] = {}
+@dataclass(frozen=True)
+class Offline:
+    """Work a pipeline asks for that puts no question to the policy (a surrogate's fit, the zoo's screening):
+    ``fn(*call)`` as a sweep task (files in ``call`` marked as :func:`aril_ros.sweep.run_tasks` reads them); the
+    pipeline is sent its result."""
 
-    def advance(index: int) -> None:
+    label: str
+    fn: Callable
+    call: tuple
+
+
+def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
+    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for work that puts no
+    question to the policy (an :class:`Offline` job, or an adversary's training), and the work all asked for runs at
+    once as sweep tasks (``workers`` CPUs of a local Ray, or the cluster at ``address``); the questions to the policy
+    stay one pipeline at a time. Two modes fit, screen and train on two CPUs in the time of one."""
+    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
+    asked: dict[int, AdversaryConfig | Offline] = {}
+
+    def advance(index: int, answer=None) -> None:
         try:
-            asked[index] = next(pipelines[index])
+            asked[index] = pipelines[index].send(answer)
         except StopIteration as done:
             made[index] = done.value
             asked.pop(index, None)
@@ -93,10 +106,23 @@ def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "
     for index in range(len(pipelines)):
         advance(index)
     while asked:
-        ready_adversaries(list(asked.values()), True, log, workers, address)
-        for index in list(asked):
-            advance(index)
+        jobs = {index: job for index, job in asked.items() if isinstance(job, Offline)}
+        if jobs:
+            label = " and ".join(dict.fromkeys(job.label for job in jobs.values()))
+            order = list(jobs)
+            for done, result in run_tasks(_offline, [(job.fn, job.call) for job in jobs.values()], workers, address,
+                                          label=label, log=log):
+                advance(order[done], result)
+        else:
+            ready_adversaries(list(asked.values()), True, log, workers, address)
+            for index in list(asked):
+                advance(index)
     return made
+
+
+def _offline(fn: Callable, call: tuple):
+    """An :class:`Offline` job, run where its sweep task runs."""
+    return fn(*call)
 
 
 def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
@@ -109,8 +135,9 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     same policy, eps, horizon, steps and refines find the files and make nothing.
 
     A generator (run it with :func:`run_pipelines`): it yields each ARIL-A training it needs as an
-    :class:`AdversaryConfig` and goes on once that file is trained; it returns the :class:`BlackBoxAttacks`. The
-    policy is connected only while it is asked (steps 1 and 4), so pipelines side by side ask it one at a time."""
+    :class:`AdversaryConfig`, and each fit and screening as an :class:`Offline` job, and goes on once that is done
+    (sent the job's result); it returns the :class:`BlackBoxAttacks`. The policy is connected only while it is asked
+    (steps 1 and 4), so pipelines side by side ask it one at a time."""
     surrogate, adversary = folder / f"surrogate-{mode}.pt", folder / f"adversary-{mode}.pt"
     record = folder / f"pipeline-{mode}.json"
     wanted = {"pipeline": PIPELINE, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
@@ -122,12 +149,16 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
                                [tuple(s) for s in made["zoo_screened"]], made["kept"])
     cfg = SurrogateConfig()
     layout, expert_policy, rng = layout_of(env_id), resolve_policy(expert, env_id), np.random.default_rng(cfg.seed)
+    expert_file = shipped(for_task(expert, env_id))
     with answering(victim_name, env_id, mode, domain) as victim:
         questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, rng)
         queries = victim.asked
-    fit_answers(questions, answers, env_id, cfg, {**wanted, "round": 0, "queries": queries}, surrogate, log)
+    yield from fitting(questions, answers, env_id, {**wanted, "round": 0, "queries": queries}, surrogate, log)
     left_out = victim_digest(leave_out or victim_name, env_id, mode)
-    screened = screen_zoo(zoo_members(env_id, mode, left_out), surrogate, env_id, mode, eps, expert_policy, horizon)
+    members = zoo_members(env_id, mode, left_out)
+    returns = yield Offline("zoo screenings", screen_zoo, ([Shipped(member) for member in members], Shipped(surrogate),
+                                                           env_id, mode, eps, expert_file, horizon))
+    screened = sorted(zip(returns, map(relative, members)))
     zoo = Path(screened[0][1]) if screened else None
     log(f"[verdict] {mode}: " + (f"the zoo's strongest against the surrogate is {relative(zoo)} "
                                  f"({len(screened)} screened, mean return {screened[0][0]:.1f})" if zoo else
@@ -142,27 +173,33 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
                               seeds.SURROGATE + round_ * cfg.episodes)
                 queries += victim.asked
             questions, answers = np.concatenate([questions, more[0]]), np.concatenate([answers, more[1]])
-            fit_answers(questions, answers, env_id, cfg, {**wanted, "round": round_, "queries": queries},
-                        surrogate, log)
+            yield from fitting(questions, answers, env_id, {**wanted, "round": round_, "queries": queries}, surrogate,
+                               log)
         share = steps // (refines + 1) + (steps % (refines + 1) if round_ == refines else 0)
         yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=relative(surrogate), expert=expert, steps=share,
                               init=str(start) if start else "", out=str(adversary))
         start = adversary
-    kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert_policy, horizon, log) if zoo else None
+    kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert, horizon, log) if zoo else None
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "kept": kept,
                                   "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
     return BlackBoxAttacks(surrogate, zoo, adversary, screened, kept)
 
 
-def keep_stronger(zoo: Path, adversary: Path, surrogate: Path, env_id: str, mode: str, eps: float, expert_policy,
+def fitting(questions: np.ndarray, answers: np.ndarray, env_id: str, made: dict, out: Path, log=print):
+    """Steps 1's and 4's fit, as an :class:`Offline` job (a generator's part: ``yield from`` it): the surrogate fitted
+    to the grouped answers at ``out``, reported in ``log`` once made."""
+    path = yield Offline("surrogate fits", fit_answers, (questions, answers, env_id, SurrogateConfig(), made,
+                                                         Produced(out), None))
+    log(summary(path, load_policy(path, env_id).meta.provenance))
+
+
+def keep_stronger(zoo: Path, adversary: Path, surrogate: Path, env_id: str, mode: str, eps: float, expert: str,
                   horizon: int, log=print) -> dict:
     """The end of step 3: the trained ``adversary`` and the ``zoo``'s best it started from run against the final
     ``surrogate`` on the screening episodes, as the zoo was screened; when the zoo's takes more return, its file
     becomes ``adversary`` (the aril_a rows then run it). Which one was kept, and both mean returns."""
-    screened = dict((name, ret) for ret, name in screen_zoo([zoo, adversary], surrogate, env_id, mode, eps,
-                                                            expert_policy, horizon))
-    returns = {"trained": screened[relative(adversary)], "zoo": screened[relative(zoo)]}
+    returns = dict(zip(("trained", "zoo"), screen_zoo([adversary, zoo], surrogate, env_id, mode, eps, expert, horizon)))
     kept = min(returns, key=returns.get)
     if kept == "zoo":
         shutil.copyfile(zoo, adversary)
@@ -248,11 +285,11 @@ def trained_against(adversary: Path, env_id: str, mode: str) -> str | None:
     return None
 
 
-def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float,
-               expert_policy, horizon: int = HORIZON) -> list[tuple[float, str]]:
+def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps: float, expert: str,
+               horizon: int = HORIZON) -> list[float]:
     """Step 2: each member's mean return against the surrogate (scaled to ``eps``) over episodes of ``horizon``
-    steps, labelled by ``expert_policy``, lowest first (none for no member)."""
-    policy = load_policy(surrogate, env_id)
+    steps, labelled by the policy ``expert`` (a file or bundled name), in the members' order."""
+    policy, expert_policy = load_policy(surrogate, env_id), resolve_policy(expert, env_id)
     scores = []
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
@@ -262,8 +299,8 @@ def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps
         for step in engine.iter_steps(SCREEN_EPISODES, seeds.SCREENING):
             returns[step.episodes] += step.reward
         engine.close()
-        scores.append((round(float(returns.mean()), 3), relative(member)))
-    return sorted(scores)
+        scores.append(round(float(returns.mean()), 3))
+    return scores
 
 
 def relative(path: Path) -> str:

@@ -342,13 +342,12 @@ def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_pat
     return as the aril_a file, whichever side it is on: the same file wins either way round."""
     from aril_ros.verdict import keep_stronger, screen_zoo
     members = zoo_members(ENV, MODE, None)[:2]
-    expert = resolve_policy("expert", ENV)
     surrogate = fit_surrogate(resolve_policy("dagger", ENV), ENV, MODE, EPS, tmp_path / "surrogate.pt",
                               SurrogateConfig(episodes=2), "dagger", quiet, HORIZON)
-    strongest = screen_zoo(members, surrogate, ENV, MODE, EPS, expert, HORIZON)[0][1]
+    strongest = verdict.relative(min(zip(screen_zoo(members, surrogate, ENV, MODE, EPS, "expert", HORIZON), members))[1])
     for zoo, trained in (members, members[::-1]):
         adversary = tmp_path / f"adversary-{MODE}.pt"
         shutil.copyfile(trained, adversary)
-        kept = keep_stronger(zoo, adversary, surrogate, ENV, MODE, EPS, expert, HORIZON, quiet)
+        kept = keep_stronger(zoo, adversary, surrogate, ENV, MODE, EPS, "expert", HORIZON, quiet)
         assert kept["kept"] == ("zoo" if verdict.relative(zoo) == strongest else "trained")
         assert sha256(adversary) == sha256(Path(strongest))
