@@ -87,19 +87,20 @@ class FGSM(Attack):
             raise ValueError(f"FGSM steps must be >= 1, got {steps}")
         self.victim, self.expert, self.steps = victim, expert, int(steps)
 
-    def loss(self, true_obs: np.ndarray, delta: np.ndarray, label: np.ndarray) -> np.ndarray:
-        return disagreement(self.victim.act(true_obs + delta), label)
-
     def propose(self, true_obs, rngs):
         label = self.expert.act(true_obs)
         delta = np.zeros_like(true_obs)
         best, best_loss = delta, np.full(len(true_obs), -np.inf)
-        for _ in range(self.steps):
-            grad = self.victim.loss_gradient(true_obs + delta, label)
+        grad, _ = self.victim.loss_gradient(true_obs + delta, label)
+        for step in range(1, self.steps + 1):
             delta = self.project(delta + (self.eps / self.steps) * np.sign(grad))
             if self.steps == 1:
                 return delta
-            loss = self.loss(true_obs, delta, label)
+            if step < self.steps:  # the next step's gradient, and the actions at this iterate its forward pass gave
+                grad, actions = self.victim.loss_gradient(true_obs + delta, label)
+            else:
+                actions = self.victim.act(true_obs + delta)
+            loss = disagreement(actions, label)
             better = loss > best_loss
             best = np.where(better[:, None], delta, best)
             best_loss = np.where(better, loss, best_loss)

@@ -168,16 +168,19 @@ class MLPPolicy(nn.Module):
         actions = x.reshape(-1, x.shape[-1])[:n].numpy().astype(np.float64)
         return actions[0] if obs.ndim == 1 else actions
 
-    def loss_gradient(self, obs: np.ndarray, target: np.ndarray) -> np.ndarray:
-        """``d/d obs ||pi(obs) - target||^2`` per row (float64), batch-invariant like :meth:`act`."""
+    def loss_gradient(self, obs: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``d/d obs ||pi(obs) - target||^2`` per row (float64), batch-invariant like :meth:`act`, and the actions
+        its forward pass computed: bit for bit ``act(obs)`` (a block's layers give the bits of :func:`blockwise_linear`),
+        so an iterative attack need not ask for them again."""
         blocks, n = in_blocks(np.atleast_2d(obs))
         targets, _ = in_blocks(np.atleast_2d(target))
-        grads = []
+        grads, actions = [], []
         for block, target_block in zip(blocks, targets):
             block = block.clone().requires_grad_(True)
-            loss = ((self(block) - target_block) ** 2).sum()
-            grads.append(torch.autograd.grad(loss, block)[0])
-        return torch.cat(grads)[:n].double().numpy()
+            action = self(block)
+            grads.append(torch.autograd.grad(((action - target_block) ** 2).sum(), block)[0])
+            actions.append(action.detach())
+        return torch.cat(grads)[:n].double().numpy(), torch.cat(actions)[:n].numpy().astype(np.float64)
 
     def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
         """Raise :class:`PolicyFileError` if this policy was not made for that env."""

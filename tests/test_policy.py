@@ -61,13 +61,16 @@ BUNDLED_POLICY_FILES = sorted(p for p in (Path(aril_ros.__file__).parent / "data
 @pytest.mark.parametrize("path", BUNDLED_POLICY_FILES, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_act_is_each_blocks_own_forward_bit_for_bit(path):
     """act() multiplies all blocks in one call; each block's rows must be what the block alone gives (the
-    promise of BLOCK_ROWS, and what the trajectories already recorded were made with)."""
+    promise of BLOCK_ROWS, and what the trajectories already recorded were made with), and so what the forward
+    pass of loss_gradient gives (FGSM^k takes its iterates' actions from there)."""
     policy = load_policy(path)
     obs = np.random.default_rng(0).normal(scale=2.0, size=(3 * BLOCK_ROWS + 5, policy.meta.obs_dim))
     blocks, n = in_blocks(obs)
     with torch.no_grad():
         block_by_block = torch.cat([policy(block) for block in blocks])[:n].double().numpy()
     np.testing.assert_array_equal(policy.act(obs), block_by_block)
+    np.testing.assert_array_equal(policy.loss_gradient(obs, np.zeros((len(obs), policy.meta.act_dim)))[1],
+                                  block_by_block)
 
 
 def test_mismatched_env_is_named(tmp_path, make_policy):
