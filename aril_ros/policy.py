@@ -141,10 +141,14 @@ class MLPPolicy(nn.Module):
 
     def normalise(self, obs: torch.Tensor) -> torch.Tensor:
         """What the net sees of ``obs`` (elementwise, so any shape)."""
-        x = (obs.float() - self.obs_mean) / self.obs_std
+        x = self.standardise(obs)
         if self.meta.obs_clip is not None:
             x = x.clamp(-self.meta.obs_clip, self.meta.obs_clip)
         return x
+
+    def standardise(self, obs: torch.Tensor) -> torch.Tensor:
+        """``obs`` in units of the observations' spread, before the clip of :meth:`normalise`."""
+        return (obs.float() - self.obs_mean) / self.obs_std
 
     def squash(self, out: torch.Tensor) -> torch.Tensor:
         """The net's output into the action bounds (elementwise, so any shape)."""
@@ -174,13 +178,38 @@ class MLPPolicy(nn.Module):
         so an iterative attack need not ask for them again."""
         blocks, n = in_blocks(np.atleast_2d(obs))
         targets, _ = in_blocks(np.atleast_2d(target))
-        grads, actions = [], []
-        for block, target_block in zip(blocks, targets):
-            block = block.clone().requires_grad_(True)
-            action = self(block)
-            grads.append(torch.autograd.grad(((action - target_block) ** 2).sum(), block)[0])
-            actions.append(action.detach())
+        grads, actions = zip(*(self.block_gradient(block, target_block) for block, target_block in zip(blocks, targets)))
         return torch.cat(grads)[:n].double().numpy(), torch.cat(actions)[:n].numpy().astype(np.float64)
+
+    @torch.no_grad()
+    def block_gradient(self, block: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One block's ``d/d obs ||forward(obs) - target||^2`` and actions, by the chain rule written out: the very
+        operations autograd runs for it, in its order (bit for bit its gradient, tests/test_policy.py), without the
+        cost of recording a graph: on one observation 0.19 ms where autograd took 0.34, and FGSM^k asks 10 a step."""
+        standard = self.standardise(block)
+        layers, outputs = list(self.net), [self.normalise(block)]
+        for layer in layers:
+            outputs.append(layer(outputs[-1]))
+        action = self.squash(outputs[-1])
+        grad = 2.0 * (action - target)  # autograd's pow backward: 1 * (2 * difference^1)
+        out = outputs[-1]
+        if self.meta.squash == "tanh":
+            grad = torch.ops.aten.tanh_backward(grad * self.action_range * 0.5, torch.tanh(out))
+        else:  # max(min(out, high), low): on a tie autograd gives each side half
+            inner = torch.minimum(out, self.action_high)
+            grad = torch.where(inner == self.action_low, grad / 2, grad).masked_fill_(inner < self.action_low, 0)
+            grad = torch.where(out == self.action_high, grad / 2, grad).masked_fill_(out > self.action_high, 0)
+        for layer, output in zip(reversed(layers), reversed(outputs[1:])):
+            if isinstance(layer, nn.Linear):
+                grad = grad.mm(layer.weight)
+            elif isinstance(layer, nn.ReLU):
+                grad = torch.ops.aten.threshold_backward(grad, output, 0)
+            else:
+                grad = torch.ops.aten.tanh_backward(grad, output)
+        if self.meta.obs_clip is not None:
+            clip = self.meta.obs_clip
+            grad = torch.where((standard >= -clip) & (standard <= clip), grad, torch.zeros((), dtype=grad.dtype))
+        return grad / self.obs_std, action
 
     def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
         """Raise :class:`PolicyFileError` if this policy was not made for that env."""

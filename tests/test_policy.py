@@ -1,3 +1,4 @@
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +72,44 @@ def test_act_is_each_blocks_own_forward_bit_for_bit(path):
     np.testing.assert_array_equal(policy.act(obs), block_by_block)
     np.testing.assert_array_equal(policy.loss_gradient(obs, np.zeros((len(obs), policy.meta.act_dim)))[1],
                                   block_by_block)
+
+
+def autograd_gradient(policy: MLPPolicy, obs: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``d/d obs ||policy(obs) - target||^2`` block by block, as autograd gives it: what loss_gradient writes out."""
+    grads = []
+    for block, target_block in zip(in_blocks(obs)[0], in_blocks(target)[0]):
+        block = block.clone().requires_grad_(True)
+        grads.append(torch.autograd.grad(((policy(block) - target_block) ** 2).sum(), block)[0])
+    return torch.cat(grads)[: len(obs)].double().numpy()
+
+
+def variants() -> list[MLPPolicy]:
+    """Every kind of net a policy file can hold (activation, squash, observation clip), small, random, its outputs
+    scaled so that many leave the action bounds (where the clip squash's gradient is cut)."""
+    made = []
+    for activation, squash, obs_clip in itertools.product(("relu", "tanh"), ("tanh", "clip"), (None, 1.5)):
+        torch.manual_seed(len(made))  # test-only: the nets' weights
+        policy = MLPPolicy(meta_for_env("HalfCheetah-v5", hidden=[64, 64], activation=activation, squash=squash,
+                                        obs_clip=obs_clip)).eval()
+        with torch.no_grad():
+            policy.net[-1].weight.mul_(8.0)
+        made.append(policy)
+    return made
+
+
+@pytest.mark.parametrize("policy", [*BUNDLED_POLICY_FILES, *variants()],
+                         ids=lambda p: f"{p.parent.name}/{p.stem}" if isinstance(p, Path) else
+                         f"{p.meta.activation}-{p.meta.squash}-clip{p.meta.obs_clip}")
+def test_loss_gradient_is_autograds_bit_for_bit(policy):
+    """loss_gradient writes the chain rule out (FGSM^k's cost): it must give autograd's gradient to the last bit, on
+    observations wide enough to reach the clip of the observations and the bounds of the actions."""
+    policy = load_policy(policy) if isinstance(policy, Path) else policy
+    rng = np.random.default_rng(0)
+    obs = rng.normal(scale=4.0, size=(2 * BLOCK_ROWS + 3, policy.meta.obs_dim))
+    target = rng.uniform(policy.meta.action_low, policy.meta.action_high, size=(len(obs), policy.meta.act_dim))
+    grad, actions = policy.loss_gradient(obs, target)
+    np.testing.assert_array_equal(grad, autograd_gradient(policy, obs, target))
+    np.testing.assert_array_equal(actions, policy.act(obs))
 
 
 def test_mismatched_env_is_named(tmp_path, make_policy):
