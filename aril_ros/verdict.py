@@ -179,7 +179,11 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
         yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=relative(surrogate), expert=expert, steps=share,
                               init=str(start) if start else "", out=str(adversary))
         start = adversary
-    kept = keep_stronger(zoo, adversary, surrogate, env_id, mode, eps, expert, horizon, log) if zoo else None
+    kept = None
+    if zoo:
+        returns = yield Offline("final screenings", screen_zoo, ([Shipped(adversary), Shipped(zoo)], Shipped(surrogate),
+                                                                env_id, mode, eps, expert_file, horizon))
+        kept = keep_stronger(zoo, adversary, dict(zip(("trained", "zoo"), returns)), mode, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "kept": kept,
                                   "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
@@ -194,12 +198,11 @@ def fitting(questions: np.ndarray, answers: np.ndarray, env_id: str, made: dict,
     log(summary(path, load_policy(path, env_id).meta.provenance))
 
 
-def keep_stronger(zoo: Path, adversary: Path, surrogate: Path, env_id: str, mode: str, eps: float, expert: str,
-                  horizon: int, log=print) -> dict:
-    """The end of step 3: the trained ``adversary`` and the ``zoo``'s best it started from run against the final
-    ``surrogate`` on the screening episodes, as the zoo was screened; when the zoo's takes more return, its file
-    becomes ``adversary`` (the aril_a rows then run it). Which one was kept, and both mean returns."""
-    returns = dict(zip(("trained", "zoo"), screen_zoo([adversary, zoo], surrogate, env_id, mode, eps, expert, horizon)))
+def keep_stronger(zoo: Path, adversary: Path, returns: dict, mode: str, log=print) -> dict:
+    """The end of step 3: the trained ``adversary`` and the ``zoo``'s best it started from were run against the final
+    surrogate on the screening episodes, as the zoo was screened (``returns``: ``trained`` and ``zoo``, each's mean
+    return); when the zoo's took more return, its file becomes ``adversary`` (the aril_a rows then run it). Which one
+    was kept, and both mean returns."""
     kept = min(returns, key=returns.get)
     if kept == "zoo":
         shutil.copyfile(zoo, adversary)

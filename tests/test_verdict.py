@@ -338,8 +338,8 @@ def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
 
 
 def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_path):
-    """keep_stronger runs both against the surrogate on the screening episodes and keeps the one that takes more
-    return as the aril_a file, whichever side it is on: the same file wins either way round."""
+    """Both run against the surrogate on the screening episodes (the pipeline's final screening), keep_stronger keeps
+    the one that takes more return as the aril_a file, whichever side it is on: the same file wins either way round."""
     from aril_ros.verdict import keep_stronger, screen_zoo
     members = zoo_members(ENV, MODE, None)[:2]
     surrogate = fit_surrogate(resolve_policy("dagger", ENV), ENV, MODE, EPS, tmp_path / "surrogate.pt",
@@ -348,6 +348,7 @@ def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_pat
     for zoo, trained in (members, members[::-1]):
         adversary = tmp_path / f"adversary-{MODE}.pt"
         shutil.copyfile(trained, adversary)
-        kept = keep_stronger(zoo, adversary, surrogate, ENV, MODE, EPS, "expert", HORIZON, quiet)
+        returns = screen_zoo([adversary, zoo], surrogate, ENV, MODE, EPS, "expert", HORIZON)
+        kept = keep_stronger(zoo, adversary, dict(zip(("trained", "zoo"), returns)), MODE, quiet)
         assert kept["kept"] == ("zoo" if verdict.relative(zoo) == strongest else "trained")
         assert sha256(adversary) == sha256(Path(strongest))
