@@ -98,11 +98,11 @@ def fit_answers(questions: np.ndarray, answers: np.ndarray, env_id: str, cfg: Su
     held_out = rng.permutation(len(questions))[: len(questions) // 10]
     train = np.setdiff1d(np.arange(len(questions)), held_out)
     rows = questions.reshape(-1, questions.shape[-1])
-    with one_thread():
-        torch.manual_seed(cfg.seed)  # the initial weights
-        surrogate = MLPPolicy(meta_for_env(env_id, hidden=[cfg.hidden, cfg.hidden], activation="tanh", squash="tanh",
-                                           obs_mean=rows.mean(0).tolist(), obs_std=(rows.std(0) + 1e-6).tolist()))
-        fit(surrogate, questions[train], answers[train], cfg)
+    torch.manual_seed(cfg.seed)  # the initial weights
+    surrogate = MLPPolicy(meta_for_env(env_id, hidden=[cfg.hidden, cfg.hidden], activation="tanh", squash="tanh",
+                                       obs_mean=rows.mean(0).tolist(), obs_std=(rows.std(0) + 1e-6).tolist()))
+    fit(surrogate, questions[train], answers[train], cfg)
+    with one_thread():  # the figures in its provenance, too, the same wherever it was fitted
         fidelity = judge(surrogate, questions[held_out], answers[held_out])
     surrogate.meta.provenance = {**stamp("aril fit-surrogate", cfg), "algorithm": "surrogate", **made,
                                  "answers": int(len(rows)), "fidelity": fidelity,
@@ -186,7 +186,7 @@ def fit(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray, cfg: S
     """Regress the grouped ``answers`` on ``questions``: the squared error of each answer plus ``cfg.local`` times
     that of each probe's variation from its visited observation's answer; Adam from ``cfg.lr`` decayed to zero along
     a cosine, ``cfg.batch`` visited observations (with their probes) an update, ``cfg.updates`` updates or
-    ``cfg.epochs`` passes, whichever is fewer. Its caller holds torch to :func:`one_thread`."""
+    ``cfg.epochs`` passes, whichever is fewer; on :func:`one_thread`."""
     x, y = torch.as_tensor(questions, dtype=torch.float32), torch.as_tensor(answers, dtype=torch.float32)
     updates = min(cfg.updates, cfg.epochs * -(-len(x) // cfg.batch))
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -194,17 +194,18 @@ def fit(surrogate: MLPPolicy, questions: np.ndarray, answers: np.ndarray, cfg: S
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda done: 0.5 * (1 + math.cos(math.pi * done / updates)))
     surrogate.train()
     try:
-        done = 0
-        while done < updates:
-            for group in torch.randperm(len(x), generator=gen).split(cfg.batch)[: updates - done]:
-                out = surrogate(x[group].reshape(-1, x.shape[-1])).reshape(y[group].shape)
-                error = ((out - y[group]) ** 2).sum(-1).mean()
-                variation = (((out[:, 1:] - out[:, :1]) - (y[group, 1:] - y[group, :1])) ** 2).sum(-1).mean()
-                optimizer.zero_grad()
-                (error + cfg.local * variation).backward()
-                optimizer.step()
-                schedule.step()
-                done += 1
+        with one_thread():
+            done = 0
+            while done < updates:
+                for group in torch.randperm(len(x), generator=gen).split(cfg.batch)[: updates - done]:
+                    out = surrogate(x[group].reshape(-1, x.shape[-1])).reshape(y[group].shape)
+                    error = ((out - y[group]) ** 2).sum(-1).mean()
+                    variation = (((out[:, 1:] - out[:, :1]) - (y[group, 1:] - y[group, :1])) ** 2).sum(-1).mean()
+                    optimizer.zero_grad()
+                    (error + cfg.local * variation).backward()
+                    optimizer.step()
+                    schedule.step()
+                    done += 1
     finally:
         surrogate.eval()
 
