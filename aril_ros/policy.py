@@ -186,7 +186,6 @@ class MLPPolicy(nn.Module):
         """One block's ``d/d obs ||forward(obs) - target||^2`` and actions, by the chain rule written out: the very
         operations autograd runs for it, in its order (bit for bit its gradient, tests/test_policy.py), without the
         cost of recording a graph: on one observation 0.19 ms where autograd took 0.34, and FGSM^k asks 10 a step."""
-        standard = self.standardise(block)
         layers, outputs = list(self.net), [self.normalise(block)]
         for layer in layers:
             outputs.append(layer(outputs[-1]))
@@ -206,8 +205,8 @@ class MLPPolicy(nn.Module):
                 grad = torch.ops.aten.threshold_backward(grad, output, 0)
             else:
                 grad = torch.ops.aten.tanh_backward(grad, output)
-        if self.meta.obs_clip is not None:
-            clip = self.meta.obs_clip
+        if self.meta.obs_clip is not None:  # the clip passes the gradient where the standardised input lies inside it
+            clip, standard = self.meta.obs_clip, self.standardise(block)
             grad = torch.where((standard >= -clip) & (standard <= clip), grad, torch.zeros((), dtype=grad.dtype))
         return grad / self.obs_std, action
 
