@@ -36,6 +36,7 @@ MODES = ("clean", "sensory", "physical")
 ATTACKED_MODES = ("sensory", "physical")
 
 ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^k", "spsa": "SPSA^k",
+           "fd_fgsm": "FGSM by finite differences",
            "aril_a": "ARIL-A", "transfer": "FGSM^k on a surrogate"}
 """Every attack by name, with the name tables print."""
 SEARCH_ROW = "aril_a_search"
@@ -57,7 +58,7 @@ TABLE_SEARCH = 16
 """Candidates of ARIL-A's query-time search in the tables' ARIL-A + search rows (the attack tables', the report's)."""
 WHITE_BOX = ("fgsm", "fgsm_k")
 """Attacks that need the victim's weights (gradients)."""
-QUERY_ATTACKS = ("spsa",)
+QUERY_ATTACKS = ("spsa", "fd_fgsm")
 """Black-box attacks that always query the victim's actions (aril_a does when its adversary takes
 actions or searches)."""
 THREATS = ("random", "fgsm", "fgsm_k", "spsa", "aril_a")

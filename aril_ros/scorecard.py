@@ -7,7 +7,8 @@ resets with seed ``seed + i`` in every cell), the drop from clean with a paired 
 per attack (the budget's: eps alone for quick; 0.25, 0.5, 1 and 2 x eps for full), the worst case at eps, and the
 expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the
 policy for actions:
-SPSA^k and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
+SPSA^k, FGSM by finite differences (the sign of the loss's slope along each perturbed entry, from two questions per
+entry) and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
 against the surrogate from it (or that one, where it takes more from the surrogate), alone and with query-time
 search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of
@@ -119,7 +120,7 @@ class Budget:
                 f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
 
 
-SCORED_ATTACKS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
+SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
 PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""

@@ -83,6 +83,34 @@ def test_spsa_is_black_box_bounded_and_near_fgsm(victim_expert):
     assert gain(delta) > 0.8 * gain(fgsm) and gain(delta) > 3 * gain(random), (gain(delta), gain(fgsm), gain(random))
 
 
+@pytest.mark.parametrize("env_id, eps", [("HalfCheetah-v5", 0.04), ("Ant-v5", 0.03)])
+def test_fd_fgsm_finds_white_box_fgsms_perturbation_from_answers_alone(env_id, eps):
+    """On the bundled DAgger learner (its float32 net, the observation clip and the action bounds included), the
+    finite differences of its answers give the sign white-box FGSM takes from its weights, entry for entry, nearly
+    everywhere (where they differ the slope is flat), at 2 questions per perturbed entry and step."""
+    from aril_ros.policy import resolve_policy
+
+    layout = layout_of(env_id)
+    victim, expert = resolve_policy("dagger", env_id), resolve_policy("expert", env_id)
+    obs = true_states(env_id, n=200, seed=300)
+    with pytest.raises(ValueError, match="fd_fgsm queries the victim's actions and the expert's"):
+        make_attack("fd_fgsm", layout, eps)
+    attack = make_attack("fd_fgsm", layout, eps, AnswersOnly(victim), expert)
+    delta = attack.perturb(obs, [None] * len(obs))
+    assert np.all(np.abs(delta) <= eps) and np.all(delta[:, ~layout.zero_order_mask] == 0)
+    assert attack.queries_per_step == 2 * layout.n_position
+    fgsm = make_attack("fgsm", layout, eps, victim, expert).perturb(obs, [None] * len(obs))
+    assert (delta == fgsm)[:, :layout.n_position].mean() > 0.99  # 1.0 on this machine's 200 states of both envs
+    assert (delta == fgsm).all(axis=1).mean() > 0.95  # whole perturbations, not only entries
+    iterated = make_attack("fd_fgsm", layout, eps, AnswersOnly(victim), expert, steps=3)
+    stepped = iterated.perturb(obs, [None] * len(obs))
+    assert iterated.queries_per_step == 3 * (2 * layout.n_position + 1) + 1
+    assert np.all(np.abs(stepped) <= eps)
+    # each row keeps its best iterate, so it takes at least the first iterate's loss (a step of eps / 3)
+    first = make_attack("fd_fgsm", layout, eps / 3, AnswersOnly(victim), expert).perturb(obs, [None] * len(obs))
+    assert np.all(one_step_loss(victim, expert, obs, stepped) >= one_step_loss(victim, expert, obs, first) - 1e-12)
+
+
 @pytest.mark.parametrize("env_id, eps", [("HalfCheetah-v5", 0.04), ("Ant-v5", 0.03), ("Swimmer-v5", 0.3)])
 def test_random_noise_is_each_episodes_uniform_draws(env_id, eps):
     """The noise of row i is ``rng_i.uniform(-eps, eps)`` on the zero-order entries, bit for bit (the engine and the

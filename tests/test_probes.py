@@ -38,7 +38,8 @@ def message_counts(log) -> dict[str, int]:
 
 # aril_a's sensory probes without search: test_graph's graph≡engine test (its adversary takes actions)
 @pytest.mark.slow
-@pytest.mark.parametrize("mode, attack", [("sensory", "spsa"), ("physical", "spsa"), ("physical", "aril_a")])
+@pytest.mark.parametrize("mode, attack", [("sensory", "spsa"), ("physical", "spsa"), ("physical", "aril_a"),
+                                          ("sensory", "fd_fgsm")])
 def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, tmp_path):
     from aril_ros.adversary import AdversaryConfig, train_adversary
 
@@ -50,7 +51,7 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
                                                         expert=str(expert), steps=0, out=str(tmp_path / "adv.pt")),
                                         log=lambda *a, **k: None))
     log = tmp_path / "run.mcap"
-    knobs = ("k:=2",) if attack == "spsa" else (f"attack_file:={adversary}", "search:=4")
+    knobs = {"spsa": ("k:=2",), "fd_fgsm": ()}.get(attack, (f"attack_file:={adversary}", "search:=4"))
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
                                    f"attack:={attack}", "eps:=0.1", "episodes:=2", f"horizon:={horizon}", "seed:=4",
                                    f"record:={log}", *knobs))
@@ -62,14 +63,16 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
     run = read_run(log)
     assert_same_steps(run, traj)
     # every step asked as many probes as the engine's attack did, and the summary says so
-    assert engine_attack.queries_per_step == (35 if attack == "spsa" else 6)
+    assert engine_attack.queries_per_step == {"spsa": 35, "fd_fgsm": 2 * 3}.get(attack, 6)
     assert (run.probes_per_step == engine_attack.queries_per_step).all()
     assert summary["queries_per_step"] == engine_attack.queries_per_step
     # probes are the policy's answers, kept apart: the step's action is the one applied, on what the policy saw
     np.testing.assert_array_equal(run.probe_action, victim.act(run.probe_obs))
     np.testing.assert_array_equal(run.action, victim.act(run.obs))
     first = np.concatenate([[0], np.cumsum(run.probes_per_step)[:-1]])
-    np.testing.assert_array_equal(run.probe_obs[first], run.true_obs)  # each step first asks about the true state
+    # each step first asks about the true state (fd_fgsm: moved by its first difference)
+    first_move = engine_attack.moves[0] if attack == "fd_fgsm" else 0.0
+    np.testing.assert_array_equal(run.probe_obs[first], run.true_obs + first_move)
     counts = message_counts(log)
     assert counts["/observation"] == counts["/action"] == len(run.tags)
     assert counts["/probe/observation"] == counts["/probe/action"] == len(run.probe_row)
@@ -178,7 +181,7 @@ def test_queries_victim_says_which_attacks_ask_the_policy(tmp_path):
     takes_actions = load_adversary(adversary_path("Swimmer-v5", "sensory"))
     assert takes_actions.takes_actions
     state_only = state_only_adversary(tmp_path)
-    assert [queries_victim(a) for a in ("none", "random", "fgsm", "fgsm_k", "spsa")] == [False] * 4 + [True]
+    assert [queries_victim(a) for a in ("none", "random", "fgsm", "fgsm_k", "spsa", "fd_fgsm")] == [False] * 4 + [True] * 2
     assert queries_victim("aril_a", takes_actions) and queries_victim("aril_a", state_only, search=2)
     assert not queries_victim("aril_a", state_only)
     # so the orchestrator has the policy node wait for the attacker's probe client on action too

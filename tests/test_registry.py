@@ -38,7 +38,7 @@ def test_names_are_defined_once_and_consistently():
     assert set(registry.PAPER_DEFENSES) <= set(registry.DEFENSES)
     assert set(registry.PER_MODE_POLICIES) <= set(registry.DEFENSES)
     assert registry.attack_for_mode("clean") == "none" and registry.attack_for_mode("sensory") == "random"
-    with pytest.raises(ValueError, match="unknown attack 'pgd'; choose one of none, random, fgsm, fgsm_k, spsa, aril_a"):
+    with pytest.raises(ValueError, match="unknown attack 'pgd'; choose one of none, random, fgsm, fgsm_k, spsa, fd_fgsm, aril_a"):
         registry.attack_for_mode("sensory", "pgd")
     with pytest.raises(ValueError, match="mode:=clean runs no attack"):
         registry.attack_for_mode("clean", "fgsm")

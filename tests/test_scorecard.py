@@ -152,7 +152,7 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     ({"policy": "external", "domain": "42", "via": "engine"}, "policy:=external is scored through the graph only"),
     ({"via": "ros"}, "unknown via 'ros'; choose one of engine, graph"),
     ({"policy": "external", "domain": "181"}, r"domain:=181 is not an allowed ROS domain id: auto, 0-101 or 215-232"),
-    ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, "
+    ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, fd_fgsm, "
                                                                   "transfer, zoo, aril_a, aril_a_search$"),
     ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
 ])

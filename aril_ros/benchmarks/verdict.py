@@ -3,7 +3,8 @@
     python -m aril_ros.benchmarks.verdict envs:=HalfCheetah-v5,Ant-v5 policies:=dagger,bc,dr,aril budgets:=quick,full
 
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
-box at each budget (every black-box row: random, SPSA^k, transfer, zoo, ARIL-A, ARIL-A + search; the zoo leaves out
+box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
+search; the zoo leaves out
 every adversary trained against this very file), on the scorecard's episodes at eps (scale 1); the budget's verdict
 is the worst of the rows the budget scores by default (all of them, or the quick budget's few), the worst of every
 row is kept beside it. The reference is
@@ -34,7 +35,7 @@ from ..registry import ATTACKED_MODES, adversary_path
 from ..report.stats import paired_drop
 from ..scorecard import BUDGETS, ScorecardConfig, scorecard
 
-BLACK_BOX_ROWS = ("random", "spsa", "transfer", "zoo", "aril_a", "aril_a_search")
+BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search")
 WITHIN = 0.95
 """A budget's rows must find this share of the drop every row finds in each cell, or of the reference's where every
 row finds more (:func:`fewest_rows`)."""
@@ -135,13 +136,14 @@ def fewest_rows(cells: list[dict], mode: str, within: float = WITHIN) -> tuple[s
     episodes, it is how the quick budget's rows are chosen."""
     targets = [(cell["drops"], within * max(cell["worst_of_every_row_drop_pct"], cell["reference"]["drop_pct"]))
                for cell in cells if cell["mode"] == mode]  # drops are negative: max is the weaker
-    subsets = sorted((rows for size in range(1, len(BLACK_BOX_ROWS) + 1)
-                      for rows in itertools.combinations(BLACK_BOX_ROWS, size)),
+    # a cell scored before a row existed holds no figure for it: only the rows every cell scored can be chosen
+    scored = [row for row in BLACK_BOX_ROWS if all(row in drops for drops, _ in targets)]
+    subsets = sorted((rows for size in range(1, len(scored) + 1) for rows in itertools.combinations(scored, size)),
                      key=lambda rows: (len(rows), [BLACK_BOX_ROWS.index(row) for row in rows][::-1]))
     for rows in subsets:
         if all(min(drops[row]["drop_pct"] for row in rows) <= target for drops, target in targets):
             return rows
-    return BLACK_BOX_ROWS
+    return tuple(scored)
 
 
 def table(rows: list[dict], budgets: list[str]) -> str:
