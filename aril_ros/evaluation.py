@@ -31,7 +31,7 @@ class EvalConfig:
     eps: float = arg(0.0, "L-infinity bound of the perturbation on the zero-order entries (0: the calibrated one for "
                           "env and mode, bundled with aril_ros (aril calibrate-eps); aril_a: its adversary's)",
                      low=0.0, high=MAX_EPS)
-    k: int = arg(0, "iterations of fgsm_k (0: 10) and of spsa (0: 5)", low=0, high=1000)
+    k: int = arg(0, "iterations of fgsm_k (0: 10), of spsa (0: 5) and of fd_fgsm (0: 1)", low=0, high=1000)
     samples: int = arg(0, "spsa: random directions per iteration, each queried at +- (0: 8)", low=0, high=1000)
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
                          "it ranks highest), the victim queried on all, the most damaging applied (0: no search)",

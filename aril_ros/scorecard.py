@@ -94,14 +94,17 @@ from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
 
 @dataclass(frozen=True)
 class Budget:
-    """How much a scorecard spends: episodes per cell, ARIL-A's training steps per mode, and SPSA^k's queries per
-    step (``1 + spsa_iterations * (2 * spsa_samples + 1)``: through the graph each one is a message to the node and
-    back, so they, not the steps, set the time of an external node's SPSA^k cells)."""
+    """How much a scorecard spends: episodes per cell, ARIL-A's training steps per mode, and the query attacks'
+    questions per step (SPSA^k's ``1 + spsa_iterations * (2 * spsa_samples + 1)``, fd_fgsm's
+    ``fd_iterations * (2 entries + 1) + 1``): through the graph each one is a message to the node and back, so they,
+    not the steps, set the time of an external node's query cells."""
 
     episodes: int
     adversary_steps: int
     spsa_iterations: int
     spsa_samples: int
+    fd_iterations: int
+    """fd_fgsm's iterations: 10, FGSM^k's own, where it is scored, so that it finds what white-box FGSM^k finds"""
     scales: str
     """the eps sweep, as multiples of the mode's eps (the default of ``scales:=``)"""
     refines: int
@@ -117,7 +120,8 @@ class Budget:
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
                 f"the surrogate, refined {self.refines} time{'s' if self.refines != 1 else ''}, SPSA^k "
-                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step)")
+                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step), FGSM by "
+                f"finite differences {self.fd_iterations} iteration{'s' if self.fd_iterations != 1 else ''}")
 
 
 SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
@@ -128,12 +132,15 @@ QUICK_ROWS = {"sensory": ("transfer", "aril_a_search"), "physical": ("aril_a",)}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes. Chosen on screening
 episodes (results/verdict-screening/verdict.md, 16 cells of HalfCheetah and Ant; results/aril_a_tuning.md, issue 38):
 with the aril_a rows running the stronger of the zoo's best and the trained ARIL-A, the rows left out (random, SPSA^k
-and the zoo in both modes, transfer and search in physical mode) lifted no cell's verdict to 0.9 of the reference."""
+and the zoo in both modes, transfer and search in physical mode) lifted no cell's verdict to 0.9 of the reference.
+fd_fgsm, which came after, is the full budget's: through the graph its 16 (HalfCheetah) to 26 (Ant) questions a step
+would add minutes to an external node's quick verdict."""
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
-# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8) and twice the paper's 1M steps
-BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, scales="1",
-                           refines=1, black_box=QUICK_ROWS),
-           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
+# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8, fd_fgsm FGSM^k's 10 iterations) and
+# twice the paper's 1M steps
+BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, fd_iterations=1,
+                           scales="1", refines=1, black_box=QUICK_ROWS),
+           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8, fd_iterations=10,
                           scales="0.25,0.5,1,2", refines=3)}
 VIAS = ("engine", "graph")
 
@@ -277,8 +284,10 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
     ``attack`` at ``eps``: what the black-box pipeline ``made`` for the mode runs as transfer (FGSM^k on its
     surrogate), zoo and aril_a (its adversaries, scaled to that eps: their perturbation times eps / their own eps)
     and aril_a_search (aril_a asking the policy about :data:`~aril_ros.verdict.SEARCH` candidates a step); SPSA^k at
-    the budget's queries (the other attacks keep their own settings: fgsm_k's k is not SPSA's)."""
-    spsa = {"k": budget.spsa_iterations, "samples": budget.spsa_samples} if attack == "spsa" else {}
+    the budget's queries, fd_fgsm at its iterations (the other attacks keep their own settings: fgsm_k's k is not
+    SPSA's)."""
+    iterations = {"spsa": {"k": budget.spsa_iterations, "samples": budget.spsa_samples},
+                  "fd_fgsm": {"k": budget.fd_iterations}}.get(attack, {})
     files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
              SEARCH_ROW: made and made.adversary}
     learned = row_attack(attack) == "aril_a"
@@ -286,7 +295,7 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
                       attack=row_attack(attack), eps=eps,
                       attack_file=str(files[attack]) if attack in files else "", rescale=learned,
                       search=SEARCH if attack == SEARCH_ROW else 0, episodes=budget.episodes, seed=cfg.seed,
-                      horizon=cfg.horizon, **spsa)
+                      horizon=cfg.horizon, **iterations)
 
 
 def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:

@@ -31,7 +31,7 @@ class GraphConfig:
                           "for the policy: the ARIL-A trained against it, random where none is bundled)")
     eps: float = arg(0.0, f"L-infinity bound of the perturbation on the zero-order entries, at most {MAX_EPS} "
                           "(0: the calibrated one for env and mode, bundled with aril_ros; aril_a: its adversary's)")
-    k: int = arg(0, "iterations of fgsm_k and spsa (0: the attack's default)", low=0, high=1000)
+    k: int = arg(0, "iterations of fgsm_k, spsa and fd_fgsm (0: the attack's default)", low=0, high=1000)
     samples: int = arg(0, "spsa: random directions per iteration, each asked at +- (0: the attack's default)",
                        low=0, high=1000)
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary); transfer: the surrogate file "

@@ -108,7 +108,7 @@ def test_a_white_box_attack_on_an_external_policy_is_refused_naming_the_black_bo
     from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator
 
     with pytest.raises(GraphError,
-                       match=f"attack:={attack} is white-box.*black-box one: random, spsa, aril_a, transfer$"):
+                       match=f"attack:={attack} is white-box.*black-box one: random, spsa, fd_fgsm, aril_a, transfer$"):
         Orchestrator(GraphConfig(attack=attack, policy="external", record="off"))
 
 

@@ -109,6 +109,17 @@ def test_the_page_quotes_each_attacks_paired_drop_and_questions_per_step_at_eps(
     per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in sensory["attacks"].items()}
     assert per_step["spsa"] == 1 + 1 * (2 * 2 + 1) and per_step["random"] == per_step["transfer"] == 0
     assert per_step["aril_a_search"] == per_step["aril_a"] + 9 and sensory["clean"]["queries"] == 0
+    assert per_step["fd_fgsm"] == 2 * 3  # the quick budget's one iteration: 2 questions per Swimmer position entry
+
+
+def test_the_full_budget_runs_fd_fgsm_at_fgsm_ks_iterations_and_spsa_at_its_own():
+    """fd_fgsm's cells at the full budget iterate as white-box FGSM^k does (10), so that it finds what FGSM^k finds;
+    SPSA^k's at the budget's 5 x 8; the other attacks at their own settings."""
+    from aril_ros.scorecard import BUDGETS, cell
+    cfg = ScorecardConfig(policy="dagger", env="HalfCheetah-v5")
+    full = {attack: cell(cfg, BUDGETS["full"], "sensory", attack, 0.04) for attack in ("fd_fgsm", "spsa", "fgsm_k")}
+    assert (full["fd_fgsm"].k, full["spsa"].k, full["spsa"].samples, full["fgsm_k"].k) == (10, 5, 8, 0)
+    assert cell(cfg, BUDGETS["quick"], "sensory", "fd_fgsm", 0.04).k == 1
 
 
 def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_policy(small_card):
