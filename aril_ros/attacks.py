@@ -155,6 +155,12 @@ class QueryAttack(Attack):
         self.attacked += len(true_obs)
         return super().perturb(true_obs, rngs)
 
+    @staticmethod
+    def keep_better(delta, loss, best, best_loss):
+        """The iterate of each row with the larger loss (the earlier one on a tie), and that loss."""
+        better = loss > best_loss
+        return np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
+
     @property
     def queries_per_step(self) -> float:
         return self.queries / max(self.attacked, 1)
@@ -196,12 +202,6 @@ class SPSA(QueryAttack):
             delta = self.project(delta + 2.5 * eps / self.steps * np.sign(slope))
         return self.keep_better(delta, self.losses(true_obs, delta[:, None], label)[:, 0], best, best_loss)[0]
 
-    @staticmethod
-    def keep_better(delta, loss, best, best_loss):
-        """The iterate of each row with the larger loss (the earlier one on a tie), and that loss."""
-        better = loss > best_loss
-        return np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
-
 
 class FiniteDifferenceFGSM(QueryAttack):
     """Black-box FGSM (FGSM^k with ``k`` > 1): the loss gradient from central finite differences of the victim's
@@ -211,8 +211,8 @@ class FiniteDifferenceFGSM(QueryAttack):
     ``± h`` (``h = eps / 100``, small enough for the local slope, large enough above float32's rounding), recover
     the gradient's sign that white-box FGSM takes from the weights. Each of the ``k`` iterations steps
     ``eps / k`` (one step of ``eps`` for ``k = 1``) along that sign and projects, as FGSM^k does; for ``k > 1``
-    each iterate is asked too and the one with the largest loss kept. Queries per step: ``2 n`` for ``k = 1``,
-    else ``k (2 n + 1) + 1``, in ``k`` (``k + 1``) batches.
+    each iterate is asked too and the one with the largest loss kept. Queries per step: ``2 n`` in one batch for
+    ``k = 1``, else ``k (2 n + 1) + 1`` in ``k + 1`` batches.
     """
 
     name = "fd_fgsm"
@@ -241,14 +241,14 @@ class FiniteDifferenceFGSM(QueryAttack):
                 asked = np.concatenate([delta[:, None], asked], axis=1)
             loss = self.losses(true_obs, asked, label)
             if iterated:
-                best, best_loss = SPSA.keep_better(delta, loss[:, 0], best, best_loss)
+                best, best_loss = self.keep_better(delta, loss[:, 0], best, best_loss)
                 loss = loss[:, 1:]
             step = np.zeros_like(true_obs)
             step[:, :n_pos] = np.sign(loss[:, :n_pos] - loss[:, n_pos:])
             delta = self.project(delta + self.eps / self.steps * step)
         if not iterated:
             return delta
-        return SPSA.keep_better(delta, self.losses(true_obs, delta[:, None], label)[:, 0], best, best_loss)[0]
+        return self.keep_better(delta, self.losses(true_obs, delta[:, None], label)[:, 0], best, best_loss)[0]
 
 
 class LearnedAttack(QueryAttack):

@@ -120,8 +120,8 @@ class Budget:
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
                 f"the surrogate, refined {self.refines} time{'s' if self.refines != 1 else ''}, SPSA^k "
-                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step), FGSM by "
-                f"finite differences {self.fd_iterations} iteration{'s' if self.fd_iterations != 1 else ''}")
+                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step), "
+                f"FGSM by finite differences {self.fd_iterations} iteration{'s' if self.fd_iterations != 1 else ''}")
 
 
 SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")

@@ -181,7 +181,8 @@ def test_queries_victim_says_which_attacks_ask_the_policy(tmp_path):
     takes_actions = load_adversary(adversary_path("Swimmer-v5", "sensory"))
     assert takes_actions.takes_actions
     state_only = state_only_adversary(tmp_path)
-    assert [queries_victim(a) for a in ("none", "random", "fgsm", "fgsm_k", "spsa", "fd_fgsm")] == [False] * 4 + [True] * 2
+    attacks = ("none", "random", "fgsm", "fgsm_k", "spsa", "fd_fgsm")
+    assert [queries_victim(a) for a in attacks] == [False] * 4 + [True] * 2
     assert queries_victim("aril_a", takes_actions) and queries_victim("aril_a", state_only, search=2)
     assert not queries_victim("aril_a", state_only)
     # so the orchestrator has the policy node wait for the attacker's probe client on action too

@@ -4,8 +4,7 @@
 
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
 box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
-search; the zoo leaves out
-every adversary trained against this very file), on the scorecard's episodes at eps (scale 1); the budget's verdict
+search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps (scale 1); the budget's verdict
 is the worst of the rows the budget scores by default (all of them, or the quick budget's few), the worst of every
 row is kept beside it. The reference is
 the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
