@@ -320,6 +320,28 @@ def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
         score_cell(VerdictBenchConfig(out=str(tmp_path), episodes=30), "HalfCheetah-v5", "dagger", "physical", "quick")
 
 
+def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still_to_score(tmp_path):
+    """A run resumed or stopped midway writes the table of every cell of its grid already scored, by it or an earlier
+    run: a cell's budget still to score shows a dash, a cell no budget scored is left out."""
+    import json
+    from aril_ros.benchmarks.verdict import VerdictBenchConfig, cell_folder, needed, scored_rows, table
+    cfg = VerdictBenchConfig(out=str(tmp_path), episodes=20)
+    env, policy = "HalfCheetah-v5", "dagger"
+    scored_cells = {("sensory", "quick"): {"transfer": -45.0}, ("sensory", "full"): {"fd_fgsm": -55.0},
+                    ("physical", "quick"): {"aril_a": -90.0}}
+    for (mode, budget), drops in scored_cells.items():
+        folder = cell_folder(cfg, env, policy, mode, budget)
+        folder.mkdir(parents=True)
+        (folder / "cell.json").write_text(json.dumps(bench_cell(drops, budget=budget, mode=mode, episodes=20)))
+    grid = [(env, policy, mode) for mode in ("sensory", "physical")] + [("Ant-v5", "bc", "sensory")]
+    rows = scored_rows(cfg, grid, ["quick", "full"])
+    assert [sorted(row) for row in rows] == [["full", "quick"], ["quick"]]  # Ant BC: nothing scored, no row
+    lines = table(rows, ["quick", "full"]).splitlines()
+    assert "| -45.0% [-46.0, -44.0] (transfer) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
+    assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
+    assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
+
+
 def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     """fewest_rows: the smallest set of rows whose worst finds WITHIN of every row's drop in each cell of the mode (of
     the reference's where every row finds more), the rows that ask least among as few; cells of the other mode do

@@ -82,17 +82,31 @@ def reference(env: str, policy: str, mode: str, episodes: int, seed: int, card: 
             "drop_pct": drops[strongest]["drop_pct"]}
 
 
+def cell_folder(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> Path:
+    """Where a cell's scorecard and figures (``cell.json``) are kept."""
+    seeded = "" if cfg.seed == seeds.SCORECARD else f"-seed{cfg.seed}"
+    return Path(cfg.out) / "cells" / f"{env}-{policy}-{mode}-{budget}{seeded}"
+
+
+def scored(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict | None:
+    """A cell's figures, judged, when it was scored already (on the episodes the run asks for); else None."""
+    done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
+    if not done.exists():
+        return None
+    figures, episodes = json.loads(done.read_text()), episodes_of(cfg, env)
+    if figures.get("episodes", DEFAULT_EPISODES) != episodes:
+        raise ValueError(f"{done} was scored on {figures.get('episodes', DEFAULT_EPISODES)} episodes, not "
+                         f"{episodes}: give another out:= (a table's cells share their episodes)")
+    return judged(figures)
+
+
 def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict:
     """One scorecard of ``policy`` in ``mode`` at ``budget`` (its figures, worst black-box drop and minutes)."""
-    seeded = "" if cfg.seed == seeds.SCORECARD else f"-seed{cfg.seed}"
-    folder = Path(cfg.out) / "cells" / f"{env}-{policy}-{mode}-{budget}{seeded}"
-    done, episodes = folder / "cell.json", episodes_of(cfg, env)
-    if done.exists():
-        figures = json.loads(done.read_text())
-        if figures.get("episodes", DEFAULT_EPISODES) != episodes:
-            raise ValueError(f"{done} was scored on {figures.get('episodes', DEFAULT_EPISODES)} episodes, not "
-                             f"{episodes}: give another out:= (a table's cells share their episodes)")
-        return judged(figures)
+    before = scored(cfg, env, policy, mode, budget)
+    if before:
+        return before
+    folder, episodes = cell_folder(cfg, env, policy, mode, budget), episodes_of(cfg, env)
+    done = folder / "cell.json"
     started = time.time()
     attacks = ",".join((*BLACK_BOX_ROWS, "fgsm_k"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -146,17 +160,18 @@ def fewest_rows(cells: list[dict], mode: str, within: float = WITHIN) -> tuple[s
 
 
 def table(rows: list[dict], budgets: list[str]) -> str:
-    """The benchmark's table: per cell the black-box drop and ratio per budget, the reference and the minutes."""
+    """The benchmark's table: per cell the black-box drop and ratio per budget (– where that budget is still to
+    score), the reference and the minutes."""
     head = "| env | policy | mode | clean | " + " | ".join(
         f"{b} black-box drop [95%] | {b} ratio | {b} min" for b in budgets) + " | reference drop |"
     lines = [head, "|" + "---|" * (5 + 3 * len(budgets))]
     for cell in rows:
-        first = cell[budgets[0]]
+        first = next(iter(cell.values()))
         ref = first["reference"]
         parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
                  f"({c['black_box_worst']}) | "
-                 f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f} | {c['minutes']:.1f}" for c in
-                 (cell[b] for b in budgets)]
+                 f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f} | {c['minutes']:.1f}" if c else "– | – | –"
+                 for c in (cell.get(b) for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
                      + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}) |")
     return "\n".join(lines) + "\n"
@@ -168,29 +183,39 @@ def main(argv=None) -> None:
         return
     if cfg.episodes == 1:
         raise ValueError("episodes:=1: a paired interval needs at least 2 episodes per cell")
-    budgets = comma_list(cfg.budgets)
-    out, rows = Path(cfg.out), []
-    for env in comma_list(cfg.envs):
-        for policy in comma_list(cfg.policies):
-            for mode in comma_list(cfg.modes):
-                cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
-                rows.append(cell)
-                ref = cell[budgets[0]]["reference"]
-                print(f"{env} {policy} {mode}: reference {ref['drop_pct']:+.1f}% ({ref['attack']}); " + "; ".join(
-                    f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}, ratio "
-                    f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f}, {c['minutes']:.1f} min)"
-                    for b, c in cell.items()), flush=True)
-                # the table so far after every cell: a run stopped midway leaves what it measured
-                (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1)
-                                                  + "\n")
-                (out / "verdict.md").write_text(table(rows, budgets) + needed(rows, budgets))
+    budgets, out = comma_list(cfg.budgets), Path(cfg.out)
+    grid = [(env, policy, mode) for env in comma_list(cfg.envs) for policy in comma_list(cfg.policies)
+            for mode in comma_list(cfg.modes)]
+    for env, policy, mode in grid:
+        cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
+        ref = cell[budgets[0]]["reference"]
+        print(f"{env} {policy} {mode}: reference {ref['drop_pct']:+.1f}% ({ref['attack']}); " + "; ".join(
+            f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}, ratio "
+            f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f}, {c['minutes']:.1f} min)"
+            for b, c in cell.items()), flush=True)
+        # the table after every cell, of every cell of the grid scored so far (by this run or an earlier one): a run
+        # stopped midway leaves the whole of what was measured
+        rows = scored_rows(cfg, grid, budgets)
+        (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1) + "\n")
+        (out / "verdict.md").write_text(table(rows, budgets) + needed(rows, budgets))
+    rows = scored_rows(cfg, grid, budgets)
     print(table(rows, budgets) + needed(rows, budgets))
+
+
+def scored_rows(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]], budgets: list[str]) -> list[dict]:
+    """The table's rows: per cell of the grid (env, policy, mode) that any budget scored, each budget's figures."""
+    rows = []
+    for env, policy, mode in grid:
+        row = {budget: figures for budget in budgets if (figures := scored(cfg, env, policy, mode, budget))}
+        if row:
+            rows.append(row)
+    return rows
 
 
 def needed(rows: list[dict], budgets: list[str]) -> str:
     """The table's last lines: per mode the fewest rows that find :data:`WITHIN` of every row's drop in each cell (of
     the reference's where every row finds more)."""
-    cells = [cell[budgets[0]] for cell in rows]
+    cells = [cell[budgets[0]] for cell in rows if budgets[0] in cell]
     return "\n" + "\n".join(
         f"Rows needed in {mode} (at least {WITHIN:g} of every row's drop in each of these cells, or of the reference's "
         "where every row finds more): "
