@@ -45,6 +45,13 @@ class Attack:
     def perturb(self, true_obs: np.ndarray, rngs: list[np.random.Generator]) -> np.ndarray:
         return self.project(self.propose(true_obs, rngs))
 
+    @staticmethod
+    def keep_better(delta, loss, best, best_loss):
+        """The iterate of each row with the larger loss (the earlier one on a tie), and that loss: how the iterated
+        attacks (FGSM^k, SPSA^k, fd_fgsm) keep their best."""
+        better = loss > best_loss
+        return np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
+
 
 class NoAttack(Attack):
     name = "none"
@@ -100,10 +107,7 @@ class FGSM(Attack):
                 grad, actions = self.victim.loss_gradient(true_obs + delta, label)
             else:
                 actions = self.victim.act(true_obs + delta)
-            loss = disagreement(actions, label)
-            better = loss > best_loss
-            best = np.where(better[:, None], delta, best)
-            best_loss = np.where(better, loss, best_loss)
+            best, best_loss = self.keep_better(delta, disagreement(actions, label), best, best_loss)
         return best
 
 
@@ -154,12 +158,6 @@ class QueryAttack(Attack):
     def perturb(self, true_obs, rngs):
         self.attacked += len(true_obs)
         return super().perturb(true_obs, rngs)
-
-    @staticmethod
-    def keep_better(delta, loss, best, best_loss):
-        """The iterate of each row with the larger loss (the earlier one on a tie), and that loss."""
-        better = loss > best_loss
-        return np.where(better[:, None], delta, best), np.where(better, loss, best_loss)
 
     @property
     def queries_per_step(self) -> float:

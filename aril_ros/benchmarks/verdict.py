@@ -4,11 +4,11 @@
 
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
 box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
-search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps (scale 1); the budget's verdict
-is the worst of the rows the budget scores by default (all of them, or the quick budget's few), the worst of every
-row is kept beside it. The reference is
-the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
-2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
+search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps
+(scale 1); the budget's verdict is the worst of the rows the budget scores by default (all of them, or the quick
+budget's few), the worst of every row is kept beside it. The reference is the stronger of white-box FGSM^k on the
+file and the bundled ARIL-A trained against that very learner (1M steps; 2M for HalfCheetah DAgger), on the same
+episodes. Per cell it prints the black-box worst drop per budget, the
 reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
 and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
 resumes from the cells already scored (a cell's figures are in its ``cell.json``, its progress with the seconds in
@@ -150,13 +150,13 @@ def fewest_rows(cells: list[dict], mode: str, within: float = WITHIN) -> tuple[s
     targets = [(cell["drops"], within * max(cell["worst_of_every_row_drop_pct"], cell["reference"]["drop_pct"]))
                for cell in cells if cell["mode"] == mode]  # drops are negative: max is the weaker
     # a cell scored before a row existed holds no figure for it: only the rows every cell scored can be chosen
-    scored = [row for row in BLACK_BOX_ROWS if all(row in drops for drops, _ in targets)]
-    subsets = sorted((rows for size in range(1, len(scored) + 1) for rows in itertools.combinations(scored, size)),
+    in_every = [row for row in BLACK_BOX_ROWS if all(row in drops for drops, _ in targets)]
+    subsets = sorted((rows for size in range(1, len(in_every) + 1) for rows in itertools.combinations(in_every, size)),
                      key=lambda rows: (len(rows), [BLACK_BOX_ROWS.index(row) for row in rows][::-1]))
     for rows in subsets:
         if all(min(drops[row]["drop_pct"] for row in rows) <= target for drops, target in targets):
             return rows
-    return tuple(scored)
+    return tuple(in_every)
 
 
 def table(rows: list[dict], budgets: list[str]) -> str:
