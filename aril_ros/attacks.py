@@ -113,8 +113,10 @@ class FGSM(Attack):
 
 class FGSMk(FGSM):
     name = "fgsm_k"
+    STEPS = 10
+    """Its iterations unless told otherwise; FGSM by finite differences takes as many where it stands for it."""
 
-    def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 10):
+    def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = STEPS):
         super().__init__(layout, eps, victim, expert, steps)
 
 

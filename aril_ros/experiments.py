@@ -5,8 +5,8 @@
   clean return. Its JSON is the bundled calibration (``aril_ros/data/eps_calibration.json``, what
   ``eps:=0`` reads), its markdown ``results/eps_calibration.md``.
 - :func:`attack_table` (``aril attack-table``): the paper's Table 1 (sensory) / Table 2 (physical)
-  *Adversary* rows — the victim's return clean and under random, FGSM, FGSM^k, SPSA^k, ARIL-A and
-  ARIL-A with query-time search at the calibrated eps, mean ± std over deterministic episodes, the drop
+  *Adversary* rows — the victim's return clean and under random, FGSM, FGSM^k, SPSA^k, ARIL-A, FGSM^k by
+  finite differences, FGSM^k on a surrogate and ARIL-A with query-time search at the calibrated eps, mean ± std over deterministic episodes, the drop
   from clean and, for the black-box attacks that query the victim, the queries per step.
 - :func:`defense_table` (``aril defense-table``): the *Robust IL* rows — each defense under its worst
   attack.
@@ -26,12 +26,13 @@ from . import seeds
 from .adversary import AdversaryConfig, load_adversary, ready_adversaries
 from .envs import HORIZON
 from .args import arg, comma_list
+from .attacks import FGSMk
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
 from .provenance import portable, stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_ROW,
                        TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack, surrogate_path,
-                       user_calibration)
+                       check_name, user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
 from .verdict import ready_surrogate
@@ -39,9 +40,15 @@ from .verdict import ready_surrogate
 TRANSFER_ROW = "transfer"
 """FGSM^k on a surrogate fitted to the victim's answers (:func:`aril_ros.verdict.ready_surrogate`): black-box, and
 the one attack that asks the victim nothing while it runs."""
-ATTACK_ROWS = ("none", *THREATS, TRANSFER_ROW, SEARCH_ROW)
+FD_ROW = "fd_fgsm"
+"""FGSM^k by finite differences (:class:`aril_ros.attacks.FiniteDifferenceFGSM`) at FGSM^k's iterations: the
+black-box FGSM^k, two questions per perturbed entry an iteration."""
+ATTACK_ROWS = ("none", *THREATS, FD_ROW, TRANSFER_ROW, SEARCH_ROW)
 """The rows of the attack tables: clean, then each attack."""
-ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW]}
+KEPT_SETTINGS = ("policy", "expert", "calibration", "episodes", "seed", "k", "search", "horizon")
+"""The settings a cell kept from an earlier run (``rows:=`` naming others) must share with the run: those that
+change its figure or the table's other cells' meaning."""
+ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences"}
 
 
 def _cell(result: dict) -> dict:
@@ -190,9 +197,13 @@ class AttackTableConfig:
     episodes: int = arg(20, "deterministic episodes per cell", low=1, high=100_000)
     seed: int = arg(seeds.ATTACK_TABLE, "env seed of the first episode (and of the attack noise)",
                     low=0, high=2**31 - 1)
-    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)", low=0, high=1000)
+    k: int = arg(0, "iterations of FGSM^k and of FGSM^k by finite differences (0: 10), and of SPSA^k (0: 5)",
+                 low=0, high=1000)
     search: int = arg(TABLE_SEARCH, "candidates of ARIL-A's query-time search in its own row (0: no such row)",
                       low=0, high=1000)
+    rows: str = arg("", f"comma-separated rows to run ({', '.join(ATTACK_ROWS)}; default: every one, "
+                        "aril_a_search where search > 0); an env already in the output keeps its other rows when they "
+                        f"were run with the same {', '.join(KEPT_SETTINGS)}, else names the one that differs")
     adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet", low=1, high=10**9)
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")
@@ -205,12 +216,17 @@ class AttackTableConfig:
 
 def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     """Fill the Adversary rows for ``cfg.envs``; envs already in the output file (same mode and
-    victim) are kept, every cell with the command that made it."""
+    victim) are kept, every cell with the command that made it, and so are an env's rows that ``rows:=`` leaves
+    out."""
     made = stamp("aril attack-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
-    rows_of = ATTACK_ROWS if cfg.search else ATTACK_ROWS[:-1]
+    rows_of = table_rows(cfg)
+    earlier = _earlier_cells(json_path, cfg) if cfg.rows else {}
     adversaries, surrogates, jobs, wanted = {}, {}, [], []
     for env in comma_list(cfg.envs):
+        if "none" not in rows_of and "none" not in earlier.get(env, {}):
+            raise ValueError(f"rows:={cfg.rows}: {json_path} has no clean row of {env} run with these settings to "
+                             "take the drops from: add none to rows:=")
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
         # against the bundled learner the adversary and the surrogate are bundled too (attack:=aril_a by name); else
         # under runs/
@@ -220,15 +236,17 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         adversaries[env] = adversary
         surrogate = (surrogate_path(env, cfg.mode) if own
                      else Path(cfg.adversary_dir) / f"surrogate-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
-        wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
-                                      steps=cfg.adversary_steps, out=str(adversary)))
-        files = {"aril_a": adversary, TRANSFER_ROW: surrogates[env]}
+        if TRANSFER_ROW in rows_of:
+            surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
+        if {"aril_a", SEARCH_ROW} & set(rows_of):
+            wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
+                                          steps=cfg.adversary_steps, out=str(adversary)))
+        files = {"aril_a": adversary, TRANSFER_ROW: surrogates.get(env)}
         for row in rows_of:
             attack = row_attack(row)
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
-                                          eps=0.0 if attack == "none" else eps, k=cfg.k,
+                                          eps=0.0 if attack == "none" else eps, k=_iterations(row, cfg.k),
                                           attack_file=str(files[attack]) if attack in files else "",
                                           search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
@@ -237,7 +255,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
     fresh = []
     for env, adversary in adversaries.items():
-        cells = {}
+        cells = dict(earlier.get(env, {}))
         for row in rows_of:
             attack = row_attack(row)
             result = next(results)
@@ -256,7 +274,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                                            **load_policy(surrogates[env], env).meta.provenance}
             log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[row]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
                 flush=True)
-        fresh.append({"env": env, "cells": cells})
+        fresh.append({"env": env, "cells": {row: cells[row] for row in ATTACK_ROWS if row in cells}})
     rows = _merge(json_path, lambda r: (r["env"],), fresh,
                   lambda old: (old.get("mode"), old.get("victim")) == (cfg.mode, cfg.policy))
     envs = [r["env"] for r in rows]
@@ -266,6 +284,37 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                "overall_drop": {a: round(sum(cells[e][a]["drop"] for e in envs) / len(envs), 4) for a in shown}}
     _write(json_path, payload, md_path, attack_markdown(payload))
     return payload
+
+
+def table_rows(cfg: AttackTableConfig) -> list[str]:
+    """The rows this run evaluates: ``rows:=``'s, else every one (ARIL-A + search where ``search`` > 0)."""
+    if cfg.rows:
+        return [check_name("row", r, ATTACK_ROWS) for r in comma_list(cfg.rows)]
+    return [r for r in ATTACK_ROWS if cfg.search or r != SEARCH_ROW]
+
+
+def _iterations(row: str, k: int) -> int:
+    """``k:=`` for the row's attack; FGSM by finite differences at FGSM^k's iterations (its own default is one)."""
+    return (k or FGSMk.STEPS) if row == FD_ROW else k
+
+
+def _earlier_cells(json_path: Path, cfg: AttackTableConfig) -> dict:
+    """Per env, the cells of an earlier run in ``json_path`` (same mode and victim) that this run keeps: every one
+    made with the same :data:`KEPT_SETTINGS`; a cell made with others is an error naming the setting."""
+    old = json.loads(json_path.read_text()) if json_path.exists() else {}
+    if (old.get("mode"), old.get("victim")) != (cfg.mode, cfg.policy):
+        return {}
+    kept = {}
+    for row in old["rows"]:
+        for name, cell in row["cells"].items():
+            differ = [s for s in KEPT_SETTINGS if cell["settings"].get(s) != getattr(cfg, s)]
+            if differ and name not in comma_list(cfg.rows):
+                raise ValueError(f"rows:={cfg.rows}: {json_path}'s {row['env']} {name} row was run with "
+                                 + ", ".join(f"{s}:={cell['settings'].get(s)}" for s in differ) + " (this run: "
+                                 + ", ".join(f"{s}:={getattr(cfg, s)}" for s in differ)
+                                 + "); run it again too (add it to rows:=) or leave rows:= unset")
+            kept.setdefault(row["env"], {})[name] = cell
+    return kept
 
 
 def attack_markdown(payload: dict) -> str:
@@ -305,7 +354,8 @@ class DefenseTableConfig:
     episodes: int = arg(20, "deterministic episodes per cell", low=1, high=100_000)
     seed: int = arg(seeds.DEFENSE_TABLE, "env seed of the first episode (and of the attack noise)",
                     low=0, high=2**31 - 1)
-    k: int = arg(0, "iterations of FGSM^k (0: 10) and SPSA^k (0: 5)", low=0, high=1000)
+    k: int = arg(0, "iterations of FGSM^k and of FGSM^k by finite differences (0: 10), and of SPSA^k (0: 5)",
+                 low=0, high=1000)
     adversary_steps: int = arg(1_000_000, "steps of the ARIL-A trained against each defense", low=1, high=10**9)
     adversary_seeds: int = arg(1, "ARIL-As trained against each defense, with training seeds 0, 1, ...: the cell's "
                                   "ARIL-A is the strongest of them (one adversary's seed can decide more than its "

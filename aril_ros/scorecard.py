@@ -66,6 +66,7 @@ from pathlib import Path
 
 from . import plugins, seeds
 from .args import arg, comma_list
+from .attacks import FGSMk
 from .cell_runner import GRAPH_RUN_CPUS, CellRunner
 from .envs import HORIZON
 from .evaluation import EvalConfig
@@ -140,8 +141,8 @@ would add minutes to an external node's quick verdict."""
 # twice the paper's 1M steps
 BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, fd_iterations=1,
                            scales="1", refines=1, black_box=QUICK_ROWS),
-           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8, fd_iterations=10,
-                          scales="0.25,0.5,1,2", refines=3)}
+           "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
+                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3)}
 VIAS = ("engine", "graph")
 
 

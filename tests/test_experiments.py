@@ -29,8 +29,9 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
                                            adversary_dir=str(tmp_path), out=str(tmp_path / "attacks"), **ONE), **QUIET)
     cells = table["rows"][0]["cells"]
-    assert set(cells) == {"none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "transfer", "aril_a_search"}
+    assert list(cells) == ["none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "fd_fgsm", "transfer", "aril_a_search"]
     assert cells["spsa"]["queries_per_step"] == 1 + 3 * (2 * 8 + 1)  # k:=3 iterations of 8 directions
+    assert cells["fd_fgsm"]["queries_per_step"] == 3 * (2 * 3 + 1) + 1  # k:=3 iterations, as FGSM^k, 3 entries
     assert cells["aril_a_search"]["queries_per_step"] == 1 + 16 + 1  # its input action, 16 draws, the likeliest
     assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
     assert cells["fgsm"]["eps"] == 0.5 and cells["none"]["eps"] == 0.0
@@ -53,6 +54,20 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                    k=3, search=0, adversary_dir=str(tmp_path), out=str(tmp_path / "again"), **ONE),
                  **QUIET)
     assert surrogate.stat().st_mtime_ns == fitted  # the same victim, eps and horizon: reused
+    # rows:= runs the rows it names again and keeps the others, which must share the settings that shape them
+    table_args = dict(envs="Swimmer-v5", mode="sensory", policy=str(victim), expert=str(expert),
+                      calibration=str(tmp_path / "cal.json"), episodes=2, horizon=60, adversary_dir=str(tmp_path),
+                      out=str(tmp_path / "attacks"), **ONE)
+    rerun = attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **table_args), **QUIET)["rows"][0]["cells"]
+    assert list(rerun) == list(cells)
+    assert all(rerun[row] == saved["rows"][0]["cells"][row] for row in cells if row != "fd_fgsm")
+    assert rerun["fd_fgsm"]["mean"] == cells["fd_fgsm"]["mean"] and "rows:=fd_fgsm" in rerun["fd_fgsm"]["command"]
+    with pytest.raises(ValueError, match=r"Swimmer-v5 \w+ row was run with k:=3 .this run: k:=2"):
+        attack_table(AttackTableConfig(k=2, rows="fd_fgsm", **table_args), **QUIET)
+    with pytest.raises(ValueError, match="no clean row of Swimmer-v5"):
+        attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **{**table_args, "out": str(tmp_path / "new")}), **QUIET)
+    with pytest.raises(ValueError, match="row"):
+        attack_table(AttackTableConfig(rows="fgsm_kk", **table_args), **QUIET)
 
 
 @pytest.mark.slow
