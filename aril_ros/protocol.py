@@ -31,6 +31,9 @@ PROBE_CLIENT = "attacker_probes"  # the node name of the attacker's probe client
 RESET_SERVICE = "sim/reset"  # rcl_interfaces/srv/SetParametersAtomically: seed (int), episode (int)
 SET_STATE_SERVICE = "sim/set_state"  # rcl_interfaces/srv/SetParametersAtomically: state (double[]), tag
 
+PROBE_BATCHES = "probe_batches"
+"""The parameter by which a policy node declares that it answers probe batches (:class:`ProbeTag` with ``rows`` > 1)."""
+
 # Where a run log keeps the probes asked on a topic: apart from the step channels, so a step channel holds
 # exactly one message per step, and a replay republishes probes where no policy answers them.
 PROBE_CHANNELS = {OBSERVATION: "probe/observation", ACTION: "probe/action"}
@@ -77,23 +80,29 @@ class StepTag:
 @dataclass(frozen=True, order=True)
 class ProbeTag:
     """The frame_id of a probe: the ``index``-th observation put to the policy during ``step`` only to
-    read its answer. It has four fields where a step tag has two, so :meth:`StepTag.parse` refuses it."""
+    read its answer, or of a **probe batch**, ``rows`` of them from the ``index``-th on in one message (their
+    values one after the other; a policy node that declares ``probe_batches`` answers them in one message too).
+    It has four fields where a step tag has two, so :meth:`StepTag.parse` refuses it."""
 
     step: StepTag
     index: int
+    rows: int = 1
 
     def __str__(self) -> str:
-        return f"{self.step}/probe/{self.index}"
+        return f"{self.step}/probe/{self.index}" + (f"..{self.index + self.rows - 1}" if self.rows > 1 else "")
 
     @classmethod
     def parse(cls, text: str) -> "ProbeTag":
         try:
             step, mark, index = text.rsplit("/", 2)
-            if mark != "probe":
+            first, batch, last = index.partition("..")
+            rows = int(last) - int(first) + 1 if batch else 1
+            if mark != "probe" or rows < (2 if batch else 1):
                 raise ValueError
-            return cls(StepTag.parse(step), int(index))
+            return cls(StepTag.parse(step), int(first), rows)
         except ValueError:
-            raise ValueError(f"not a probe tag (want '<episode>/<step>/probe/<k>'): {text!r}") from None
+            raise ValueError(f"not a probe tag (want '<episode>/<step>/probe/<k>', or '<episode>/<step>/probe/<k>..<m>' "
+                             f"for a batch of probes k to m): {text!r}") from None
 
 
 def is_probe(frame_id: str) -> bool:
@@ -102,6 +111,11 @@ def is_probe(frame_id: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def probe_rows(frame_id: str) -> int:
+    """The observations a message tagged ``frame_id`` holds: a probe batch's rows, else one."""
+    return ProbeTag.parse(frame_id).rows if ".." in frame_id else 1
 
 
 def stamp_ns(global_step: int, dt: float) -> int:

@@ -55,7 +55,8 @@ class AttackerNode(Node):
         env_id = self.layout.env_id
         # spsa always asks the policy node; aril_a does when its adversary takes actions or it searches,
         # which its file tells once the attack is made
-        self.probes = (RemotePolicy(env_id, connect_timeout=None, name=P.PROBE_CLIENT)
+        self.probes = (RemotePolicy(env_id, connect_timeout=None, name=P.PROBE_CLIENT,
+                                    batches=declared(self, P.PROBE_BATCHES, True))
                        if attack in (*QUERY_ATTACKS, "aril_a") else None)
         self.attack = make_attack(
             attack, self.layout, attack_budget(env_id, self.mode, attack, declared(self, "eps", 0.0)),

@@ -38,6 +38,9 @@ class GraphConfig:
                                 "(aril fit-surrogate)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
+    probe_batches: bool = arg(True, "query-based attacks: ask a step's probes in one message (a probe batch) where the "
+                                    "policy node declares its probe_batches parameter true, as the bundled one does "
+                                    "(false: one message a probe, as to a node that does not)")
     baseline: bool = arg(True, "run_graph.py, an attacked mode: the clean return of the same episodes beside the "
                                "attacked one (the engine's; an external node's through a clean run of the graph)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its adversary's: scale its perturbation by eps / its eps "
@@ -126,7 +129,7 @@ class GraphRun:
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
-                         "rescale": cfg.rescale,
+                         "rescale": cfg.rescale, "probe_batches": cfg.probe_batches,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(self.adversary)} if self.adversary else {})},
             "expert": {"env": cfg.env, "expert": expert},

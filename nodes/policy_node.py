@@ -2,7 +2,9 @@
 
 Parameters: ``env``, ``policy`` (a bundled name such as ``expert`` or a policy file path) and ``mode``
 (sensory | physical: which of the per-mode bundled learners ``dr`` and ``aril`` to load; unused for
-other names and files). Any node that does the same on these two topics can replace it
+other names and files), ``probe_batches`` (default true: it declares that it answers a probe batch, several
+observations in one message, with their actions in one message; false makes a query-based attack ask one
+probe a message). Any node that does the same on these two topics can replace it
 (``run_graph.py policy:=external``).
 """
 from __future__ import annotations
@@ -37,13 +39,17 @@ class PolicyNode(Node):
         self.names = layout_of(env_id).action_names
         self.pub = self.create_publisher(JointState, out_topic, STEP_QOS)
         sub = self.create_subscription(JointState, in_topic, self.on_observation, STEP_QOS)
+        declared(self, P.PROBE_BATCHES, True)  # read by the attacker's probe client, which then asks in batches
         listeners = declared(self, "listeners", out_subscribers)
         self.ready = ReadyAnnouncer(self, {f"a publisher on {in_topic}": publishers(sub),
                                            f"{listeners} subscribers on {out_topic}": subscribers(self.pub, listeners)})
 
     def on_observation(self, msg: JointState) -> None:
-        action = self.policy.act(np.asarray(msg.position, dtype=np.float64))
-        self.pub.publish(joint_state(msg.header, self.names, effort=action))
+        obs = np.asarray(msg.position, dtype=np.float64)
+        rows = P.probe_rows(msg.header.frame_id)
+        # a batch's rows in one call: the policy acts on each row as it would alone (16-row blocks)
+        action = self.policy.act(obs.reshape(rows, -1) if rows > 1 else obs)
+        self.pub.publish(joint_state(msg.header, self.names, effort=np.ravel(action)))
 
 
 def main(args=None):

@@ -5,7 +5,10 @@ policy contract), asked for actions as a black box. It is the ``aril_ros.victims
 ``RemotePolicy.act(batch)`` publishes every row at once as a probe (``observation`` tagged
 :class:`aril_ros.protocol.ProbeTag` ``"<episode>/<step>/probe/<k>"``, numbered within the step
 :meth:`RemotePolicy.begin_step` names; step 0/0 unless one is named) and waits for every tagged
-``action``: the simulator never steps on a probe's answer. It spins a context, node and executor of
+``action``: the simulator never steps on a probe's answer. Where the policy node declares the parameter
+``probe_batches`` true (``aril_ros_nodes.policy_node`` does), the rows go as probe batches instead, up to
+:data:`BATCH_ROWS` a message (tagged ``"<episode>/<step>/probe/<k>..<m>"``), each answered by one message: a
+message and its callbacks, not the policy's arithmetic, are what a probe costs. It spins a context, node and executor of
 its own inside the call, so an attacker node can wait for answers within its own callback.
 """
 from __future__ import annotations
@@ -15,7 +18,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import rclpy
+from rcl_interfaces.msg import ParameterType
 from rclpy.experimental import EventsExecutor
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
@@ -31,6 +36,18 @@ policy's publisher may go out before that publisher has matched the client (each
 and its answer is then lost. A policy without hidden state answers a repeated probe the same way."""
 
 
+BATCH_ROWS = 256
+"""Probes in one probe batch at most: a step's (SPSA^k's 17 an iteration, FGSM by finite differences' 27 on Ant) go
+in one; a surrogate's thousands of questions in messages of about 0.1 MB."""
+CAPABILITY_TIMEOUT = 2.0
+"""Seconds to wait for a policy node's parameter services when asking whether it takes probe batches; a node
+without them is asked one probe a message."""
+
+
+UNKNOWN_NODE = "_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_"
+"""What an endpoint's node is called until its name has been discovered."""
+
+
 class RemotePolicyError(ConnectionError):
     """No policy node answers, or it stopped answering."""
 
@@ -40,9 +57,10 @@ class RemotePolicy:
     once, and whoever builds it waits for :meth:`checks` (the attacker node's ReadyAnnouncer does)."""
 
     def __init__(self, env_id: str, timeout: float = 10.0, connect_timeout: float | None = 30.0,
-                 name: str = "adversary_trainer"):
+                 name: str = "adversary_trainer", batches: bool = True):
         self.layout = layout_of(env_id)
         self.timeout = timeout
+        self.batches = None if batches else False  # None: ask the policy node before the first probe
         self.meta = SimpleNamespace(provenance={"victim": "a policy node reached over ROS (black box)"})
         self.context = rclpy.Context()
         rclpy.init(args=[], context=self.context, signal_handler_options=SignalHandlerOptions.NO)
@@ -89,16 +107,47 @@ class RemotePolicy:
             self.waiting.discard(msg.header.frame_id)
             self.replies[msg.header.frame_id] = np.asarray(msg.effort, dtype=np.float64)
 
+    def answers_in_batches(self) -> str:
+        """Why the probes go in batches (every node publishing on ``action`` declares the parameter
+        ``probe_batches`` true) or one a message (the first node that does not), in a line of the log."""
+        deadline = time.monotonic() + CAPABILITY_TIMEOUT
+        # an endpoint can be discovered before the name of its node (which DDS learns apart): wait for the names
+        while UNKNOWN_NODE in (nodes := self.policy_nodes()) and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        for name in nodes:
+            client = AsyncParameterClient(self.node, name)
+            if not client.wait_for_services(timeout_sec=CAPABILITY_TIMEOUT):
+                return f"one a message: {name} offers no parameter services within {CAPABILITY_TIMEOUT:g} s"
+            future = client.get_parameters([P.PROBE_BATCHES])
+            deadline = time.monotonic() + self.timeout
+            while not future.done() and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.05)
+            values = future.result().values if future.done() else []  # none for a parameter it never declared
+            if not values or values[0].type != ParameterType.PARAMETER_BOOL or not values[0].bool_value:
+                return f"one a message: {name} does not declare {P.PROBE_BATCHES} true"
+        return f"in batches: {', '.join(nodes)} declare{'s' if len(nodes) == 1 else ''} {P.PROBE_BATCHES} true" if nodes \
+            else f"one a message: no node publishes on {P.ACTION}"
+
+    def policy_nodes(self) -> list[str]:
+        """The full names of the nodes publishing on ``action``."""
+        return [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.node.get_publishers_info_by_topic(P.ACTION)]
+
     def act(self, obs: np.ndarray) -> np.ndarray:
+        if self.batches is None:
+            why = self.answers_in_batches()
+            self.batches = why.startswith("in batches")
+            self.node.get_logger().info(f"probes to the policy: {why}")
         rows = np.atleast_2d(obs)
-        tags = [ProbeTag(self.step, self.asked + i) for i in range(len(rows))]
+        size = BATCH_ROWS if self.batches else 1
+        tags = [ProbeTag(self.step, self.asked + i, min(size, len(rows) - i)) for i in range(0, len(rows), size)]
         self.asked += len(rows)
         self.waiting.update(map(str, tags))
-        self.publish(zip(tags, rows))
+        chunks = [rows[tag.index - tags[0].index:][:tag.rows] for tag in tags]
+        self.publish(zip(tags, chunks))
         deadline, resend = time.monotonic() + self.timeout, time.monotonic() + RESEND_AFTER
         while self.waiting:
             if time.monotonic() > resend:
-                self.publish((tag, row) for tag, row in zip(tags, rows) if str(tag) in self.waiting)
+                self.publish((tag, chunk) for tag, chunk in zip(tags, chunks) if str(tag) in self.waiting)
                 resend = time.monotonic() + RESEND_AFTER
             if time.monotonic() > deadline:
                 missing = len(self.waiting)
@@ -106,16 +155,18 @@ class RemotePolicy:
                 raise RemotePolicyError(f"the policy node did not answer {missing} of {len(tags)} probes "
                                         f"of step {self.step} within {self.timeout:.0f} s")
             self.executor.spin_once(timeout_sec=0.05)
-        actions = [self.replies.pop(str(tag)) for tag in tags]
-        sizes = {a.size for a in actions}
-        if sizes != {self.layout.act_dim}:
-            raise RemotePolicyError(f"the policy node answered {'/'.join(map(str, sorted(sizes)))} action values, "
-                                    f"{self.layout.env_id} takes {self.layout.act_dim}")
-        return actions[0] if np.ndim(obs) == 1 else np.stack(actions)
+        answers = [self.replies.pop(str(tag)) for tag in tags]
+        per_probe = {a.size / tag.rows for a, tag in zip(answers, tags)}
+        if per_probe != {self.layout.act_dim}:
+            raise RemotePolicyError(f"the policy node answered {'/'.join(f'{n:g}' for n in sorted(per_probe))} action "
+                                    f"values a probe, {self.layout.env_id} takes {self.layout.act_dim}")
+        actions = np.concatenate(answers).reshape(len(rows), self.layout.act_dim)
+        return actions[0] if np.ndim(obs) == 1 else actions
 
     def publish(self, probes) -> None:
-        for tag, row in probes:
-            self.pub.publish(joint_state(step_header(tag, self.stamp_ns), self.layout.names, row))
+        """Each probe (a tag and its rows) as one message, the rows' values one after the other."""
+        for tag, chunk in probes:
+            self.pub.publish(joint_state(step_header(tag, self.stamp_ns), self.layout.names, chunk.ravel()))
 
     def close(self) -> None:
         self.executor.shutdown()

@@ -13,7 +13,7 @@ from aril_ros.envs import MujocoSim, layout_of
 from aril_ros.policy import load_policy
 from aril_ros.protocol import ProbeTag, StepTag
 from aril_ros.rollout import RolloutEngine
-from aril_ros.runlog import RunLogWriter, read_run, recover
+from aril_ros.runlog import RunLogError, RunLogWriter, read_run, recover
 from tests.conftest import (assert_same_steps, cdr, free_domain, policy_files, ros_env, run_graph, run_with_external,
                             simulator_and_prober, step_messages, summary_of)
 
@@ -26,6 +26,11 @@ def test_a_probe_tag_names_its_step_and_is_no_step_tag():
         StepTag.parse(str(probe))
     with pytest.raises(ValueError, match="not a probe tag"):
         ProbeTag.parse("3/127")
+    # a probe batch: rows 5 to 7 in one message; a batch has two rows at least
+    batch = ProbeTag(StepTag(3, 127), 5, 3)
+    assert str(batch) == "3/127/probe/5..7" and ProbeTag.parse("3/127/probe/5..7") == batch
+    assert P.probe_rows("3/127/probe/5..7") == 3 and P.probe_rows("3/127/probe/5") == P.probe_rows("3/127") == 1
+    assert not P.is_probe("3/127/probe/5..5") and not P.is_probe("3/127/probe/5..")
 
 
 def message_counts(log) -> dict[str, int]:
@@ -38,9 +43,10 @@ def message_counts(log) -> dict[str, int]:
 
 # aril_a's sensory probes without search: test_graph's graph≡engine test (its adversary takes actions)
 @pytest.mark.slow
-@pytest.mark.parametrize("mode, attack", [("sensory", "spsa"), ("physical", "spsa"), ("physical", "aril_a"),
-                                          ("sensory", "fd_fgsm")])
-def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, tmp_path):
+@pytest.mark.parametrize("mode, attack, batches", [("sensory", "spsa", True), ("physical", "spsa", True),
+                                                   ("physical", "aril_a", True), ("sensory", "fd_fgsm", True),
+                                                   ("sensory", "spsa", False)])
+def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, batches, tmp_path):
     from aril_ros.adversary import AdversaryConfig, train_adversary
 
     env_id, horizon = "Swimmer-v5", 25
@@ -54,7 +60,7 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
     knobs = {"spsa": ("k:=2",), "fd_fgsm": ()}.get(attack, (f"attack_file:={adversary}", "search:=4"))
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
                                    f"attack:={attack}", "eps:=0.1", "episodes:=2", f"horizon:={horizon}", "seed:=4",
-                                   f"record:={log}", *knobs))
+                                   f"record:={log}", f"probe_batches:={batches}", *knobs))
     victim, labeller = load_policy(policy), load_policy(expert)
     engine_attack = make_attack(attack, layout_of(env_id), 0.1, victim=victim, expert=labeller,
                                 steps=2 if attack == "spsa" else None, adversary=adversary, mode=mode,
@@ -75,7 +81,10 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
     np.testing.assert_array_equal(run.probe_obs[first], run.true_obs + first_move)
     counts = message_counts(log)
     assert counts["/observation"] == counts["/action"] == len(run.tags)
-    assert counts["/probe/observation"] == counts["/probe/action"] == len(run.probe_row)
+    # in batches, one message for each time the attack asks (spsa: the true state, then each iteration's directions;
+    # aril_a: its input action, then the search's candidates); else one a probe
+    asks = {"spsa": 1 + 2, "fd_fgsm": 1}.get(attack, 2) * len(run.tags) if batches else len(run.probe_row)
+    assert counts["/probe/observation"] == counts["/probe/action"] == asks
 
 
 def test_an_external_policy_node_is_attacked_by_queries_alone(tmp_path):
@@ -129,19 +138,22 @@ def test_the_simulator_never_steps_on_a_probe():
         np.testing.assert_array_equal(heard["0/1"].position, obs)
 
 
-def probe_messages(probe: ProbeTag, stamp: int) -> dict[str, bytes]:
+def probe_messages(probe: ProbeTag, stamp: int, answers: int | None = None) -> dict[str, bytes]:
+    """A probe's (or a probe batch's) observation, row k being (9, k), and its answer (-k): ``answers`` rows of it."""
     from aril_ros_nodes.common import step_header
 
     header = step_header(probe, stamp)
-    return {P.OBSERVATION: cdr(header, ["x", "y"], position=[9.0, float(probe.index)]),
-            P.ACTION: cdr(header, ["u"], effort=[-float(probe.index)])}
+    rows = range(probe.index, probe.index + probe.rows)
+    return {P.OBSERVATION: cdr(header, ["x", "y"], position=[v for k in rows for v in (9.0, float(k))]),
+            P.ACTION: cdr(header, ["u"], effort=[-float(k) for k in rows][:answers])}
 
 
 def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_keeps_them_apart(tmp_path):
     from aril_ros.runlog import StepRecorder
 
-    writer = RunLogWriter(tmp_path / "run.mcap", {"env": "test", "mode": "sensory", "eps": 0.0, "obs_names": ["x", "y"],
-                                                  "zero_order": [True, False], "action_names": ["u"]})
+    meta = {"env": "test", "mode": "sensory", "eps": 0.0, "obs_names": ["x", "y"], "zero_order": [True, False],
+            "action_names": ["u"]}
+    writer = RunLogWriter(tmp_path / "run.mcap", meta)
     recorder = StepRecorder(writer)
     recorder.start_episode(0)
     first, second = (StepTag(0, 0), 0), (StepTag(0, 1), 50_000_000)
@@ -155,9 +167,10 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
     recorder.on_message(P.OBSERVATION, probes[1][P.OBSERVATION])
     assert recorder.steps_written == 1 and recorder.probes_answered == 2
     recorder.on_message(P.OBSERVATION, probes[1][P.OBSERVATION])  # asked again after its step was written
-    for topic, raw in step_messages(*second, done=True).items():
+    batch = probe_messages(ProbeTag(second[0], 0, 3), second[1])  # three probes in one message, and their answers
+    for topic, raw in [*batch.items(), *step_messages(*second, done=True).items()]:
         recorder.on_message(topic, raw)
-    assert recorder.steps_written == 2 and recorder.probes_answered == 2 and recorder.episode_done
+    assert recorder.steps_written == 2 and recorder.probes_answered == 2 + 3 and recorder.episode_done
     recorder.close(interrupted=False)
     complete = (tmp_path / "run.mcap").read_bytes()
     (tmp_path / "cut.mcap").write_bytes(complete[:-1])  # a closed log is not recovered: cut its final magic
@@ -166,10 +179,20 @@ def test_the_recorder_writes_a_step_once_its_probes_are_answered_and_the_reader_
         run = read_run(log, allow_interrupted=True)
         np.testing.assert_array_equal(run.obs, [[0.0, 1.0], [1.0, 1.0]])  # the steps, as without probes
         np.testing.assert_array_equal(run.action, [[0.5], [0.5]])
-        np.testing.assert_array_equal(run.probes_per_step, [2, 0])
-        np.testing.assert_array_equal(run.probe_obs, [[9.0, 0.0], [9.0, 1.0]])
-        np.testing.assert_array_equal(run.probe_action, [[0.0], [-1.0]])
-        assert message_counts(log)["/probe/action"] == 2
+        np.testing.assert_array_equal(run.probes_per_step, [2, 3])
+        np.testing.assert_array_equal(run.probe_obs, [[9.0, 0.0], [9.0, 1.0], [9.0, 0.0], [9.0, 1.0], [9.0, 2.0]])
+        np.testing.assert_array_equal(run.probe_action, [[0.0], [-1.0], [0.0], [-1.0], [-2.0]])
+        np.testing.assert_array_equal(run.probe_row, [0, 0, 1, 1, 1])
+        assert message_counts(log)["/probe/action"] == 3
+    # a batch answered with fewer actions than it asked is refused by every reader, naming the batch
+    short = RunLogWriter(tmp_path / "short.mcap", meta)
+    short.write_step(first[1], step_messages(*first, done=False),
+                     [probe_messages(ProbeTag(first[0], 0, 2), first[1], answers=1)])
+    short.write_step(second[1], step_messages(*second, done=True))
+    short.close(interrupted=False, episodes=[])
+    with pytest.raises(RunLogError, match=r"probe 0/0/probe/0\.\.1 probe/action: 1 values, the run's layout has 1 a "
+                                          r"probe, 2 probes"):
+        read_run(tmp_path / "short.mcap")
 
 
 @pytest.mark.slow

@@ -14,7 +14,8 @@ Foxglove:
   (:class:`aril_ros.runlog.stream.ChunkStreamWriter`), and the file is flushed after every step (a killed run
   loses no complete step);
 - the probes of a query-based attack (observations put to the policy only to read its answer, tagged
-  ``"<episode>/<step>/probe/<k>"``) on channels of their own, ``/probe/observation`` and ``/probe/action``
+  ``"<episode>/<step>/probe/<k>"``, or ``"<episode>/<step>/probe/<k>..<m>"`` for a probe batch, probes k to m in
+  one message) on channels of their own, ``/probe/observation`` and ``/probe/action``
   (:data:`aril_ros.protocol.PROBE_CHANNELS`), byte for byte as published on ``observation`` and ``action``, right
   after their step at its log time, in the order asked; the step channels hold the steps alone;
 - metadata :data:`RUN` at the start: env, mode, attack, eps, seed, episodes, the observation layout with its

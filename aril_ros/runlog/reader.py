@@ -197,9 +197,10 @@ def _assemble(path: Path, rules: RunRules, meta: dict, end: dict, collected: Col
     asked = sorted(((tag, probe) for tag in order for probe in collected.probes.get(tag, {})),
                    key=lambda pair: (row[pair[0]], pair[1].index))
 
-    def probe_column(topic, width):
-        return np.array([getattr(collected.probes[tag][probe][topic][0].decoded, VALUES[topic])
-                         for tag, probe in asked], dtype=np.float64).reshape(len(asked), width)
+    def probe_column(topic, width):  # a probe batch's message holds its rows one after the other
+        return np.array([value for tag, probe in asked
+                         for value in getattr(collected.probes[tag][probe][topic][0].decoded, VALUES[topic])],
+                        dtype=np.float64).reshape(-1, width)
 
     obs, act = len(rules.obs_names), len(rules.action_names)
     physics = len(collected.steps[order[0]][P.PHYSICS][0].decoded.position) if order else 0
@@ -220,5 +221,5 @@ def _assemble(path: Path, rules: RunRules, meta: dict, end: dict, collected: Col
         physics_state=column(P.PHYSICS, physics),
         probe_obs=probe_column(P.OBSERVATION, obs),
         probe_action=probe_column(P.ACTION, act),
-        probe_row=np.array([row[tag] for tag, _ in asked], dtype=np.int64),
+        probe_row=np.array([row[tag] for tag, probe in asked for _ in range(probe.rows)], dtype=np.int64),
     )

@@ -146,7 +146,7 @@ class StepRecorder:
                 self.writer.write_step(stamp, msgs, probes)
             self.written[tag] = {topic: digest(raw) for topic, raw in msgs.items()}
             self.last_stamp = stamp
-            self.probes_answered += len(probes)
+            self.probes_answered += sum(probe.rows for probe in asked)  # a probe batch answers its rows
             self.last_written = tag
             if tag in self.frames:
                 self._write_frame(*self.frames.pop(tag))

@@ -7,8 +7,11 @@ in-process engine.
 The graph figure is ``steps_per_s`` of the orchestrator behind ``run_graph.py`` (episodes only,
 start-up excluded); the bare chain is measured beside each mode's graph cells, in turn with them (``repeats``),
 so that a load that comes and goes on the machine touches both alike. The engine runs the same policy, expert, attack and
-episode length with one env (``n_envs:=1``, like the graph) and with 32. The last line is the figures as JSON
-(what ``aril report`` reads: this module is the ``aril_ros.benchmarks`` entry point ``graph``).
+episode length with one env (``n_envs:=1``, like the graph) and with 32. Then the query-based attacks
+(``probe_attacks``: SPSA^k, FGSM^k by finite differences, ARIL-A + search), sensory, with the policy node asked a
+step's probes in batches and one message a probe (``probe_batches:=false``), in turn, best of ``repeats``, and
+their ratio. The last line is the figures as JSON (what ``aril report`` reads: this module is the
+``aril_ros.benchmarks`` entry point ``graph``).
 """
 import json
 import os
@@ -18,15 +21,20 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from aril_ros.args import arg, module_config
+from aril_ros.args import arg, comma_list, module_config
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ros_domain
-from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode, check_name
 from aril_ros.rollout import RolloutEngine
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
 from benchmarks.graph import bare_chain
+
+
+PROBE_ATTACKS = {"spsa": {"attack": "spsa", "k": 5, "samples": 8}, "fd_fgsm": {"attack": "fd_fgsm", "k": 10},
+                 "search": {"attack": "aril_a", "search": 16, "rescale": True}}
+"""The query-based attacks at the full budget's settings (ARIL-A + search at the tables' 16 candidates)."""
 
 
 @dataclass
@@ -37,6 +45,10 @@ class GraphBenchConfig:
     steps: int = arg(2000, "steps per graph measurement (whole episodes of this length)", low=1, high=10**9)
     eps: float = arg(0.05, "attack budget", low=0.0, high=MAX_EPS)
     bare_steps: int = arg(2000, "steps per bare-chain measurement", low=1, high=10**9)
+    probe_attacks: str = arg(",".join(PROBE_ATTACKS), "comma-separated query-based attacks to time with probes in "
+                                                        f"batches and one a message ({', '.join(PROBE_ATTACKS)}; "
+                                                        "empty: none)")
+    probe_steps: int = arg(200, "steps per query-based attack's run", low=1, high=10**9)
     repeats: int = arg(1, "runs of the bare chain, the graph and the graph with recording per mode, in turn; each "
                           "cell is the best of them", low=1, high=20)
 
@@ -50,6 +62,18 @@ def graph_steps_per_s(cfg, mode: str, record: bool) -> float:
             return Orchestrator(graph, log=lambda *a, **k: None).run()["steps_per_s"]
         except (ValueError, GraphError) as err:
             raise SystemExit(f"the graph run ({mode}) failed: {err}") from None
+
+
+def probe_steps_per_s(cfg, knobs: dict, batches: bool) -> tuple[float, float]:
+    """Steps/s and probes per step of one sensory episode of ``probe_steps`` under a query-based attack, the probes
+    in batches or one a message."""
+    graph = GraphConfig(mode="sensory", env=cfg.env, eps=cfg.eps, episodes=1, horizon=cfg.probe_steps, record="off",
+                        probe_batches=batches, **knobs)
+    try:
+        summary = Orchestrator(graph, log=lambda *a, **k: None).run()
+    except (ValueError, GraphError) as err:
+        raise SystemExit(f"the graph run ({knobs}) failed: {err}") from None
+    return summary["steps_per_s"], summary["queries_per_step"]
 
 
 def engine_steps_per_s(cfg, mode: str, n_envs: int) -> float:
@@ -88,6 +112,14 @@ def main(argv):
         rows[mode] = {**{cell: max(run[cell] for run in runs) for cell in compared},
                       "engine n_envs=1": engine_steps_per_s(cfg, mode, 1),
                       "engine n_envs=32": engine_steps_per_s(cfg, mode, 32)}
+    probes = {}
+    for name in comma_list(cfg.probe_attacks):
+        knobs = PROBE_ATTACKS[check_name("probe attack", name, tuple(PROBE_ATTACKS))]
+        runs = [{batches: probe_steps_per_s(cfg, knobs, batches) for batches in (True, False)}
+                for _ in range(cfg.repeats)]
+        batched, single = (max(run[batches][0] for run in runs) for batches in (True, False))
+        probes[name] = {"probes per step": runs[0][True][1], "in batches": round(batched, 1),
+                        "one a message": round(single, 1), "batches / one a message": round(batched / single, 2)}
     ratios = {mode: {f"{cell} / bare": round(row[cell] / row["bare chain"], 2) for cell in ("graph", "graph+record")}
               for mode, row in rows.items()}
     columns, ratio_columns = list(rows["clean"]), list(ratios["clean"])
@@ -97,8 +129,14 @@ def main(argv):
     for mode, row in rows.items():
         print(f"{mode:<10}" + "".join(f"{row[c]:>18.0f}" for c in columns)
               + "".join(f"{ratios[mode][c]:>21.2f}" for c in ratio_columns))
+    if probes:
+        print(f"query-based attacks, sensory: steps/s ({cfg.probe_steps} steps per run, best of {cfg.repeats})")
+        print(f"{'attack':<10}{'probes/step':>12}{'in batches':>12}{'one a message':>15}{'ratio':>8}")
+        for name, row in probes.items():
+            print(f"{name:<10}{row['probes per step']:>12g}{row['in batches']:>12.0f}{row['one a message']:>15.0f}"
+                  f"{row['batches / one a message']:>8.2f}")
     print(json.dumps({"env": cfg.env, **{m: {**{k: round(v, 1) for k, v in r.items()}, **ratios[m]}
-                                         for m, r in rows.items()}}))
+                                         for m, r in rows.items()}, "probes": probes}))
 
 
 if __name__ == "__main__":
