@@ -4,7 +4,8 @@
 
 For each attacked mode: the clean return and every attack's return on the same env seeds (paired: episode ``i``
 resets with seed ``seed + i`` in every cell), the drop from clean with a paired Student-t 95% interval, an eps sweep
-per attack (the budget's: eps alone for quick; 0.25, 0.5, 1 and 2 x eps for full), the worst case at eps, and the
+per attack (the budget's: eps alone for quick; 0.25, 0.5, 1 and 2 x eps for full; through the graph, where each cell
+is a run, of the mode's worst attack at eps alone), the worst case at eps, and the
 expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; the black-box ones, which only ask the
 policy for actions:
 SPSA^k, FGSM by finite differences (the sign of the loss's slope along each perturbed entry, from two questions per
@@ -160,7 +161,8 @@ class ScorecardConfig:
                      low=0.0, high=MAX_EPS)
     expert: str = arg("expert", "the expert whose action on the true state is the disagreement's reference")
     scales: str = arg("", "the eps sweep: comma-separated multiples of eps, 1 among them (the worst case is judged "
-                          "at eps); default: the budget's (" + "; ".join(f"{n} {b.scales}" for n, b in BUDGETS.items())
+                          "at eps; through the graph the other multiples run for each mode's worst attack alone); "
+                          "default: the budget's (" + "; ".join(f"{n} {b.scales}" for n, b in BUDGETS.items())
                       + ")")
     attacks: str = arg("", "comma-separated attacks to score (default: every one that applies: "
                            f"{', '.join(SCORED_ATTACKS)}; an external node not the white-box {', '.join(WHITE_BOX)})")
@@ -205,12 +207,21 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         clean = dict(zip(tested, cleans))
         made = pipelines_for(cfg, modes, eps, budget, out, log) if set(attacks) & set(PIPELINE_ATTACKS) else {}
         rows = {mode: rows_of(cfg, budget, attacks, mode, made.get(mode)) for mode in modes}
-        plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode))
-                for mode in modes for attack in rows[mode] for scale in scales]
-        cells = iter(runner.run(plan, log))
+        # on the engine every row's sweep at once; through the graph each cell is a run, so every row at eps (the
+        # verdict), then the sweep of each mode's worst row alone
+        swept_later = via_of(cfg) == "graph"
+        first = [(mode, attack, scale) for mode in modes for attack in rows[mode] for scale in scales
+                 if scale == 1.0 or not swept_later]
+        figures = run_cells(cfg, budget, runner, first, eps, made, log)
+        if swept_later:
+            worst = {mode: worst_case(clean[policies[mode]], {a: {1.0: figures[mode, a, 1.0]} for a in rows[mode]})
+                     for mode in modes}
+            figures |= run_cells(cfg, budget, runner, [(mode, worst[mode]["attack"], scale) for mode in modes
+                                                       for scale in scales if scale != 1.0], eps, made, log)
     results = {}
     for mode in modes:
-        mode_cells = {attack: {scale: next(cells) for scale in scales} for attack in rows[mode]}
+        mode_cells = {attack: {scale: figures[mode, attack, scale] for scale in scales
+                               if (mode, attack, scale) in figures} for attack in rows[mode]}
         mode_clean = clean[policies[mode]]
         results[mode] = {"eps": eps[mode], "eps_source": "eps:=" if cfg.eps else "calibrated",
                          **({"policy": policies[mode]} if policies[mode] != cfg.policy else {}),
@@ -228,6 +239,15 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         f"{mode} worst {SCORECARD_ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%"
         for mode, r in results.items()))
     return page
+
+
+def run_cells(cfg: ScorecardConfig, budget: Budget, runner: CellRunner, wanted: list[tuple[str, str, float]],
+              eps: dict, made: dict, log) -> dict:
+    """The figures of each (mode, attack, scale) cell ``wanted``, run together (none: nothing runs)."""
+    if not wanted:
+        return {}
+    plan = [cell(cfg, budget, mode, attack, scale * eps[mode], made.get(mode)) for mode, attack, scale in wanted]
+    return dict(zip(wanted, runner.run(plan, log)))
 
 
 def rows_of(cfg: ScorecardConfig, budget: Budget, attacks: list[str], mode: str, made: BlackBoxAttacks | None

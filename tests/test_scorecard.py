@@ -285,16 +285,25 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     cluster.add_node(num_cpus=GRAPH_RUN_CPUS)
     try:
         scorecard(ScorecardConfig(policy=str(mine), via="graph", keep_logs=True, address=cluster.address,
-                                  out=str(tmp_path / "card"), **{**SMALL, "attacks": "fgsm"}), log=lambda *a, **k: None)
+                                  out=str(tmp_path / "card"), **{**SMALL, "attacks": "random,fgsm"}),
+                  log=lambda *a, **k: None)
     finally:
         cluster.shutdown()
     by_graph, by_engine = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"]
                            for folder in (tmp_path / "card", small_card[1]))
     assert by_graph["clean"] == by_engine["clean"]
-    assert by_graph["attacks"] == {"fgsm": by_engine["attacks"]["fgsm"]}  # white-box: the file is the node's victim
-    assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == [
-        "clean-none-0.mcap", "sensory-fgsm-0.3.mcap", "sensory-fgsm-0.6.mcap"]
-    assert "a run of the ROS 2 graph" in (tmp_path / "card" / "scorecard.md").read_text()
+    # every row at eps, and the eps sweep (each cell a run) of the worst one alone; white-box fgsm: the file is the
+    # node's victim
+    worst = by_graph["worst"]["attack"]
+    other = ({"random", "fgsm"} - {worst}).pop()
+    assert worst == min(("random", "fgsm"), key=lambda a: by_engine["attacks"][a]["1.0"]["mean_return"])
+    assert by_graph["attacks"] == {worst: by_engine["attacks"][worst], other: {"1.0": by_engine["attacks"][other]["1.0"]}}
+    assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == sorted([
+        "clean-none-0.mcap", f"sensory-{worst}-0.3.mcap", f"sensory-{worst}-0.6.mcap", f"sensory-{other}-0.3.mcap"])
+    page = (tmp_path / "card" / "scorecard.md").read_text()
+    assert "a run of the ROS 2 graph" in page and "worst attack's alone: – marks a cell not run" in page
+    row = next(line for line in page.splitlines() if line.startswith(f"| {SCORECARD_ATTACKS[other]} |"))
+    assert row.endswith(f"| {by_engine['attacks'][other]['1.0']['mean_return']:.0f}, – |")  # at 1x and 2x eps
 
 
 def test_an_env_without_bundled_adversaries_is_scored_without_a_zoo(tmp_path, monkeypatch):

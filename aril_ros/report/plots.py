@@ -88,9 +88,10 @@ def plot_scorecard_sweep(result: dict, scales: list[float], title: str, path: Pa
     fig, ax = plt.subplots(figsize=(6, 3.6))
     clean = result["clean"]["mean_return"]
     for attack, sweep in result["attacks"].items():
-        x = [sweep[s]["eps"] for s in scales]
-        y = np.array([sweep[s]["mean_return"] for s in scales])
-        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in scales])
+        swept = [s for s in scales if s in sweep]  # through the graph only the worst attack is swept
+        x = [sweep[s]["eps"] for s in swept]
+        y = np.array([sweep[s]["mean_return"] for s in swept])
+        half = np.nan_to_num([paired_drop(result["clean"], sweep[s])["ci95"] for s in swept])
         ax.plot(x, y, marker="o", ms=3, label=SCORECARD_ATTACKS[attack])
         ax.fill_between(x, y - half, y + half, alpha=0.12)
     ax.axhline(clean, color="black", lw=1, ls="--", label="clean")

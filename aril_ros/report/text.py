@@ -297,7 +297,10 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
              f"{settings['seed']}..{settings['seed'] + episodes - 1} in every cell (paired), each "
              f"{'a run of the ROS 2 graph' if through_graph else 'on the engine'}. Drop: mean of the per-episode "
              "differences from clean, in % of the clean return, with a Student-t 95% interval. Every episode is in "
-             "`scorecard.json`.", "", *HOW_ATTACKS_ASK, ""]
+             "`scorecard.json`." + (" Through the graph the eps sweep (each of its cells a run too) is each mode's "
+                                    "worst attack's alone: – marks a cell not run."
+                                    if through_graph and len(card["scales"]) > 1 else ""),
+             "", *HOW_ATTACKS_ASK, ""]
     for mode, r in card["modes"].items():
         worst = r["worst"]
         lines += [f"## {mode}, eps {r['eps']:g} ({r['eps_source']})", "",
@@ -317,6 +320,7 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
             lines.append(f"| {SCORECARD_ATTACKS[attack]} | {at['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
                          f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {at['mean_expert_loss']:.4f} | "
                          f"{'gradients' if attack in WHITE_BOX else format(at['queries_per_step'], 'g')} | "
-                         + ", ".join(f"{sweep[s]['mean_return']:.0f}" for s in card["scales"]) + " |")
+                         + ", ".join(f"{sweep[s]['mean_return']:.0f}" if s in sweep else "–" for s in card["scales"])
+                         + " |")
         lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
     return "\n".join(lines)
