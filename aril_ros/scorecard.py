@@ -122,8 +122,17 @@ class Budget:
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
                 f"the surrogate, refined {self.refines} time{'s' if self.refines != 1 else ''}, SPSA^k "
-                f"{self.spsa_iterations} x {self.spsa_samples} directions ({self.spsa_queries} queries per step), "
-                f"FGSM by finite differences {self.fd_iterations} iteration{'s' if self.fd_iterations != 1 else ''}")
+                f"{self.spsa_iterations} x {self.spsa_samples} directions, {self.spsa_queries} queries per step"
+                f"{self.where_named('spsa')}, FGSM by finite differences {self.fd_iterations} "
+                f"iteration{'s' if self.fd_iterations != 1 else ''}{self.where_named('fd_fgsm')}")
+
+    def where_named(self, row: str) -> str:
+        """How the budget scores ``row``: in every mode, in some, or only where ``attacks:=`` names it."""
+        modes = [mode for mode, rows in (self.black_box or {}).items() if row not in rows]
+        if not modes:
+            return ""
+        return (" (where attacks:= names it)" if len(modes) == len(self.black_box)
+                else f" (in {', '.join(modes)} mode where attacks:= names it)")
 
 
 SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
@@ -137,13 +146,24 @@ with the aril_a rows running the stronger of the zoo's best and the trained ARIL
 and the zoo in both modes, transfer and search in physical mode) lifted no cell's verdict to 0.9 of the reference.
 fd_fgsm, which came after, is the full budget's: through the graph its 16 (HalfCheetah) to 26 (Ant) questions a step
 would add minutes to an external node's quick verdict."""
+FULL_ROWS = {"sensory": ("random", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search"),
+             "physical": ("random", "transfer", "zoo", "aril_a", "aril_a_search")}
+"""The full budget's black-box rows: every one but SPSA^k, and in physical mode but FGSM by finite differences too.
+Through the graph each row is 20 runs of 1,000 steps, and the query rows are the costliest (on an external node,
+SPSA^k 283 s and fd_fgsm 537 s of a sensory verdict's 20 runs, issue 38). On screening episodes
+(results/verdict-screening) SPSA^k at 5 x 8 led two sensory cells by at most 0.4 points over another row, and fd_fgsm
+at 10 iterations took more than SPSA^k in one of them (HalfCheetah ARIL: -7.8% against -6.2%) and 0.91 of it in the
+other (Ant DR: -17.5% against -19.3%, transfer -18.9%); in physical mode a learned adversary's row took 13 to 79
+points more than SPSA^k in every screened cell, and on the DAgger learners fd_fgsm took less than FGSM^k
+(results/attacks_physical.md: -36.0% overall against -41.6%, ARIL-A -82.8%). ``attacks:=`` scores either where
+wanted."""
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
-# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8, fd_fgsm FGSM^k's 10 iterations) and
-# twice the paper's 1M steps
+# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8 where named, fd_fgsm FGSM^k's 10
+# iterations) and twice the paper's 1M steps
 BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, fd_iterations=1,
                            scales="1", refines=1, black_box=QUICK_ROWS),
            "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
-                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3)}
+                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3, black_box=FULL_ROWS)}
 VIAS = ("engine", "graph")
 
 

@@ -122,6 +122,23 @@ def test_the_full_budget_runs_fd_fgsm_at_fgsm_ks_iterations_and_spsa_at_its_own(
     assert cell(cfg, BUDGETS["quick"], "sensory", "fd_fgsm", 0.04).k == 1
 
 
+def test_the_full_budget_scores_every_black_box_row_but_spsa_and_physical_fd_fgsm_unless_named():
+    """SPSA^k and, in physical mode, fd_fgsm are the costliest rows through the graph and found no more than the
+    others on screening episodes (scorecard.FULL_ROWS); a file's white-box rows stand beside them; attacks:= names
+    any row back."""
+    from aril_ros.scorecard import BUDGETS, rows_of
+    full = BUDGETS["full"]
+    file = ScorecardConfig(policy="dagger", env="HalfCheetah-v5", budget="full")
+    every = list(SCORED_ATTACKS)
+    assert rows_of(file, full, every, "sensory", None) == ["random", "fd_fgsm", "transfer", "zoo", "aril_a",
+                                                           "aril_a_search", "fgsm", "fgsm_k"]
+    assert rows_of(file, full, every, "physical", None) == ["random", "transfer", "zoo", "aril_a", "aril_a_search",
+                                                            "fgsm", "fgsm_k"]
+    named = dataclasses.replace(file, attacks="spsa,fd_fgsm")
+    assert rows_of(named, full, ["spsa", "fd_fgsm"], "physical", None) == ["spsa", "fd_fgsm"]
+    assert "86 queries per step (where attacks:= names it)" in full.describe()
+
+
 def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_policy(small_card):
     """The rows of the pipeline's attacks, run on its files, and its line on the page: the surrogate's questions and
     held-out fidelity (its file's own record), the zoo's choice (the strongest of those screened, which are every

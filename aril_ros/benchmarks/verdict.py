@@ -5,10 +5,10 @@
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
 box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
 search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps
-(scale 1); the budget's verdict is the worst of the rows the budget scores by default (all of them, or the quick
-budget's few), the worst of every row is kept beside it. The reference is the stronger of white-box FGSM^k on the
-file and the bundled ARIL-A trained against that very learner (1M steps; 2M for HalfCheetah DAgger), on the same
-episodes. Per cell it prints the black-box worst drop per budget, the
+(scale 1); the budget's verdict is the worst of the rows the budget scores by default (the quick budget's few; the
+full budget's every one but SPSA^k, and physical fd_fgsm), the worst of every row is kept beside it. The reference
+is the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
+2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
 reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
 and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
 resumes from the cells already scored (a cell's figures are in its ``cell.json``, its progress with the seconds in
