@@ -42,8 +42,6 @@ in one; a surrogate's thousands of questions in messages of about 0.1 MB."""
 CAPABILITY_TIMEOUT = 2.0
 """Seconds to wait for a policy node's parameter services when asking whether it takes probe batches; a node
 without them is asked one probe a message."""
-
-
 UNKNOWN_NODE = "_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_"
 """What an endpoint's node is called until its name has been discovered."""
 
@@ -139,10 +137,10 @@ class RemotePolicy:
             self.node.get_logger().info(f"probes to the policy: {why}")
         rows = np.atleast_2d(obs)
         size = BATCH_ROWS if self.batches else 1
-        tags = [ProbeTag(self.step, self.asked + i, min(size, len(rows) - i)) for i in range(0, len(rows), size)]
+        chunks = [rows[i:i + size] for i in range(0, len(rows), size)]
+        tags = [ProbeTag(self.step, self.asked + i * size, len(chunk)) for i, chunk in enumerate(chunks)]
         self.asked += len(rows)
         self.waiting.update(map(str, tags))
-        chunks = [rows[tag.index - tags[0].index:][:tag.rows] for tag in tags]
         self.publish(zip(tags, chunks))
         deadline, resend = time.monotonic() + self.timeout, time.monotonic() + RESEND_AFTER
         while self.waiting:
@@ -150,16 +148,17 @@ class RemotePolicy:
                 self.publish((tag, chunk) for tag, chunk in zip(tags, chunks) if str(tag) in self.waiting)
                 resend = time.monotonic() + RESEND_AFTER
             if time.monotonic() > deadline:
-                missing = len(self.waiting)
+                missing = sum(tag.rows for tag in tags if str(tag) in self.waiting)
                 self.waiting.clear()
-                raise RemotePolicyError(f"the policy node did not answer {missing} of {len(tags)} probes "
+                raise RemotePolicyError(f"the policy node did not answer {missing} of {len(rows)} probes "
                                         f"of step {self.step} within {self.timeout:.0f} s")
             self.executor.spin_once(timeout_sec=0.05)
         answers = [self.replies.pop(str(tag)) for tag in tags]
-        per_probe = {a.size / tag.rows for a, tag in zip(answers, tags)}
-        if per_probe != {self.layout.act_dim}:
-            raise RemotePolicyError(f"the policy node answered {'/'.join(f'{n:g}' for n in sorted(per_probe))} action "
-                                    f"values a probe, {self.layout.env_id} takes {self.layout.act_dim}")
+        for answer, tag in zip(answers, tags):
+            if answer.size != tag.rows * self.layout.act_dim:
+                batch = f" to probe batch {tag} ({tag.rows} probes)" if tag.rows > 1 else ""
+                raise RemotePolicyError(f"the policy node answered {answer.size} action values{batch}, "
+                                        f"{self.layout.env_id} takes {self.layout.act_dim}" + (" a probe" if batch else ""))
         actions = np.concatenate(answers).reshape(len(rows), self.layout.act_dim)
         return actions[0] if np.ndim(obs) == 1 else actions
 

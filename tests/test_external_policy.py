@@ -137,6 +137,29 @@ def test_a_node_that_tags_its_answers_wrong_is_named(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_node_that_declares_probe_batches_but_answers_one_action_is_named(tmp_path):
+    """It declares probe_batches and answers every message with one action: the run stops at the first probe batch
+    and says which, how many values came and how many a probe takes."""
+    declares = documented_node().replace(
+        "        self.listeners = self.declare_parameter('listeners', 2).value",
+        "        self.declare_parameter('probe_batches', True)\n"
+        "        self.listeners = self.declare_parameter('listeners', 2).value")
+    assert declares != documented_node()
+    _, expert = policy_files(tmp_path, "HalfCheetah-v5")
+    domain = free_domain()
+    node = start_node(declares, domain, tmp_path, "-p", "listeners:=3")
+    try:
+        out = run_graph("policy:=external", f"expert:={expert}", "attack:=spsa", "k:=1", "episodes:=1", "horizon:=5",
+                        "record:=off", domain=domain, besides=[node.pid])
+    finally:
+        stop(node)
+    assert out.returncode == 1
+    # SPSA^k's first question: the true state and its 2 x 8 directions, in one batch
+    assert ("step 0/0: the policy node answered 6 action values to probe batch 0/0/probe/0..16 (17 probes), "
+            "HalfCheetah-v5 takes 6 a probe") in out.stderr, out.stderr
+
+
+@pytest.mark.slow
 def test_a_run_without_its_external_node_says_how_to_start_one(tmp_path):
     _, expert = policy_files(tmp_path, "HalfCheetah-v5")
     domain = free_domain()
