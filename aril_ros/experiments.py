@@ -6,8 +6,8 @@
   ``eps:=0`` reads), its markdown ``results/eps_calibration.md``.
 - :func:`attack_table` (``aril attack-table``): the paper's Table 1 (sensory) / Table 2 (physical)
   *Adversary* rows — the victim's return clean and under random, FGSM, FGSM^k, SPSA^k, ARIL-A, FGSM^k by
-  finite differences, FGSM^k on a surrogate and ARIL-A with query-time search at the calibrated eps, mean ± std over deterministic episodes, the drop
-  from clean and, for the black-box attacks that query the victim, the queries per step.
+  finite differences, FGSM^k on a surrogate and ARIL-A with query-time search at the calibrated eps, mean ± std
+  over deterministic episodes, the drop from clean and, for the black-box attacks that query the victim, the queries per step.
 - :func:`defense_table` (``aril defense-table``): the *Robust IL* rows — each defense under its worst
   attack.
 
@@ -221,7 +221,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     made = stamp("aril attack-table", cfg)
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     rows_of = table_rows(cfg)
-    earlier = _earlier_cells(json_path, cfg) if cfg.rows else {}
+    earlier = _earlier_cells(json_path, cfg, rows_of) if cfg.rows else {}
     adversaries, surrogates, jobs, wanted = {}, {}, [], []
     for env in comma_list(cfg.envs):
         if "none" not in rows_of and "none" not in earlier.get(env, {}):
@@ -298,9 +298,10 @@ def _iterations(row: str, k: int) -> int:
     return (k or FGSMk.STEPS) if row == FD_ROW else k
 
 
-def _earlier_cells(json_path: Path, cfg: AttackTableConfig) -> dict:
-    """Per env, the cells of an earlier run in ``json_path`` (same mode and victim) that this run keeps: every one
-    made with the same :data:`KEPT_SETTINGS`; a cell made with others is an error naming the setting."""
+def _earlier_cells(json_path: Path, cfg: AttackTableConfig, rows: list[str]) -> dict:
+    """Per env, the cells of an earlier run in ``json_path`` (same mode and victim), which this run keeps where it
+    does not run their ``rows`` again: every one made with the same :data:`KEPT_SETTINGS`; a cell made with others
+    is an error naming the setting."""
     old = json.loads(json_path.read_text()) if json_path.exists() else {}
     if (old.get("mode"), old.get("victim")) != (cfg.mode, cfg.policy):
         return {}
@@ -308,7 +309,7 @@ def _earlier_cells(json_path: Path, cfg: AttackTableConfig) -> dict:
     for row in old["rows"]:
         for name, cell in row["cells"].items():
             differ = [s for s in KEPT_SETTINGS if cell["settings"].get(s) != getattr(cfg, s)]
-            if differ and name not in comma_list(cfg.rows):
+            if differ and name not in rows:
                 raise ValueError(f"rows:={cfg.rows}: {json_path}'s {row['env']} {name} row was run with "
                                  + ", ".join(f"{s}:={cell['settings'].get(s)}" for s in differ) + " (this run: "
                                  + ", ".join(f"{s}:={getattr(cfg, s)}" for s in differ)

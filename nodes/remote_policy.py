@@ -105,9 +105,9 @@ class RemotePolicy:
             self.waiting.discard(msg.header.frame_id)
             self.replies[msg.header.frame_id] = np.asarray(msg.effort, dtype=np.float64)
 
-    def answers_in_batches(self) -> str:
-        """Why the probes go in batches (every node publishing on ``action`` declares the parameter
-        ``probe_batches`` true) or one a message (the first node that does not), in a line of the log."""
+    def answers_in_batches(self) -> tuple[bool, str]:
+        """Whether the probes go in batches (every node publishing on ``action`` declares the parameter
+        ``probe_batches`` true) or one a message (the first node that does not), and why, for the log."""
         deadline = time.monotonic() + CAPABILITY_TIMEOUT
         # an endpoint can be discovered before the name of its node (which DDS learns apart): wait for the names
         while UNKNOWN_NODE in (nodes := self.policy_nodes()) and time.monotonic() < deadline:
@@ -115,16 +115,17 @@ class RemotePolicy:
         for name in nodes:
             client = AsyncParameterClient(self.node, name)
             if not client.wait_for_services(timeout_sec=CAPABILITY_TIMEOUT):
-                return f"one a message: {name} offers no parameter services within {CAPABILITY_TIMEOUT:g} s"
+                return False, f"one a message: {name} offers no parameter services within {CAPABILITY_TIMEOUT:g} s"
             future = client.get_parameters([P.PROBE_BATCHES])
             deadline = time.monotonic() + self.timeout
             while not future.done() and time.monotonic() < deadline:
                 self.executor.spin_once(timeout_sec=0.05)
             values = future.result().values if future.done() else []  # none for a parameter it never declared
             if not values or values[0].type != ParameterType.PARAMETER_BOOL or not values[0].bool_value:
-                return f"one a message: {name} does not declare {P.PROBE_BATCHES} true"
-        return f"in batches: {', '.join(nodes)} declare{'s' if len(nodes) == 1 else ''} {P.PROBE_BATCHES} true" if nodes \
-            else f"one a message: no node publishes on {P.ACTION}"
+                return False, f"one a message: {name} does not declare {P.PROBE_BATCHES} true"
+        if not nodes:
+            return False, f"one a message: no node publishes on {P.ACTION}"
+        return True, f"in batches: {', '.join(nodes)} declare{'s' if len(nodes) == 1 else ''} {P.PROBE_BATCHES} true"
 
     def policy_nodes(self) -> list[str]:
         """The full names of the nodes publishing on ``action``."""
@@ -132,8 +133,7 @@ class RemotePolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         if self.batches is None:
-            why = self.answers_in_batches()
-            self.batches = why.startswith("in batches")
+            self.batches, why = self.answers_in_batches()
             self.node.get_logger().info(f"probes to the policy: {why}")
         rows = np.atleast_2d(obs)
         size = BATCH_ROWS if self.batches else 1

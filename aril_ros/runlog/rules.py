@@ -88,9 +88,10 @@ def step_fault(rules: RunRules, tag: StepTag, step: dict, probes: dict, physics_
             copies = halves.get(topic, [])
             if len(copies) != 1:
                 return f"probe {probe} has {len(copies)} messages on {P.PROBE_CHANNELS[topic]}, one is the rule"
-            if len(getattr(copies[0].decoded, VALUES[topic])) != size * probe.rows:
-                return (f"probe {probe} {P.PROBE_CHANNELS[topic]}: {len(getattr(copies[0].decoded, VALUES[topic]))} "
-                        f"values, the run's layout has {size}" + (f" a probe, {probe.rows} probes" if probe.rows > 1 else ""))
+            values = len(getattr(copies[0].decoded, VALUES[topic]))
+            if values != size * probe.rows:
+                return (f"probe {probe} {P.PROBE_CHANNELS[topic]}: {values} values, the run's layout has {size}"
+                        + (f" a probe, {probe.rows} probes" if probe.rows > 1 else ""))
     return None
 
 

@@ -26,14 +26,17 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import ros_domain
-from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, attack_for_mode, check_name
+from aril_ros.registry import DEFAULT_ENV, MAX_EPS, MODES, TABLE_SEARCH, attack_for_mode, check_name
 from aril_ros.rollout import RolloutEngine
+from aril_ros.scorecard import BUDGETS
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, allocate_domain
 from benchmarks.graph import bare_chain
 
 
-PROBE_ATTACKS = {"spsa": {"attack": "spsa", "k": 5, "samples": 8}, "fd_fgsm": {"attack": "fd_fgsm", "k": 10},
-                 "search": {"attack": "aril_a", "search": 16, "rescale": True}}
+FULL = BUDGETS["full"]
+PROBE_ATTACKS = {"spsa": {"attack": "spsa", "k": FULL.spsa_iterations, "samples": FULL.spsa_samples},
+                 "fd_fgsm": {"attack": "fd_fgsm", "k": FULL.fd_iterations},
+                 "search": {"attack": "aril_a", "search": TABLE_SEARCH, "rescale": True}}
 """The query-based attacks at the full budget's settings (ARIL-A + search at the tables' 16 candidates)."""
 
 
