@@ -281,13 +281,15 @@ class AsNode:
         return False
 
 
-def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None) -> dict:
-    """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop and the reference."""
+def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
+               reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)") -> dict:
+    """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop, the reference and
+    the CPU they were scored on."""
     from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
     figures = {"env": "HalfCheetah-v5", "policy": "dagger", "mode": mode, "budget": budget, "minutes": 1.0,
                "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
-               "reference": {"attack": "fgsm_k", "drop_pct": -50.0}}
+               "reference": {"attack": "fgsm_k", "drop_pct": reference}, "cpu": cpu}
     return figures if episodes is None else {**figures, "episodes": episodes}
 
 
@@ -322,23 +324,30 @@ def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
 
 def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still_to_score(tmp_path):
     """A run resumed or stopped midway writes the table of every cell of its grid already scored, by it or an earlier
-    run: a cell's budget still to score shows a dash, a cell no budget scored is left out."""
+    run: a cell's budget still to score shows a dash, a cell no budget scored is left out. A budget scored on another
+    CPU model is judged against the reference scored with it, which its ratio names."""
     import json
     from aril_ros.benchmarks.verdict import VerdictBenchConfig, cell_folder, needed, scored_rows, table
     cfg = VerdictBenchConfig(out=str(tmp_path), episodes=20)
     env, policy = "HalfCheetah-v5", "dagger"
     scored_cells = {("sensory", "quick"): {"transfer": -45.0}, ("sensory", "full"): {"fd_fgsm": -55.0},
-                    ("physical", "quick"): {"aril_a": -90.0}}
+                    ("physical", "quick"): {"aril_a": -90.0}, ("physical", "full"): {"aril_a": -66.0}}
+    elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)"}
     for (mode, budget), drops in scored_cells.items():
         folder = cell_folder(cfg, env, policy, mode, budget)
         folder.mkdir(parents=True)
-        (folder / "cell.json").write_text(json.dumps(bench_cell(drops, budget=budget, mode=mode, episodes=20)))
+        figures = bench_cell(drops, budget=budget, mode=mode, episodes=20,
+                             **(elsewhere if (mode, budget) == ("physical", "full") else {}))
+        (folder / "cell.json").write_text(json.dumps(figures))
     grid = [(env, policy, mode) for mode in ("sensory", "physical")] + [("Ant-v5", "bc", "sensory")]
     rows = scored_rows(cfg, grid, ["quick", "full"])
-    assert [sorted(row) for row in rows] == [["full", "quick"], ["quick"]]  # Ant BC: nothing scored, no row
+    assert [sorted(row) for row in rows] == [["full", "quick"], ["full", "quick"]]  # Ant BC: nothing scored, no row
     lines = table(rows, ["quick", "full"]).splitlines()
     assert "| -45.0% [-46.0, -44.0] (transfer) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
-    assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
+    assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | -66.0% [-67.0, -65.0] (aril_a) | "
+                             "1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 | -50.0% (fgsm_k) |")
+    full_alone = scored_rows(cfg, [(env, policy, "physical")], ["full"])
+    assert table(full_alone, ["full"]).splitlines()[2].endswith("| 1.10 | 1.0 | -60.0% (fgsm_k) |")
     assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
 
 

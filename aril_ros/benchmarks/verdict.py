@@ -11,8 +11,9 @@ is the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained a
 2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
 reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
 and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
-resumes from the cells already scored (a cell's figures are in its ``cell.json``, its progress with the seconds in
-its ``scorecard.log``). Below the table, per mode, the fewest rows that find nearly every row's drop (or the
+resumes from the cells already scored (a cell's figures are in its ``cell.json``, with the CPU they were scored on,
+its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
+resumed on another CPU model, whose episodes differ from the same files, is judged against its own. Below the table, per mode, the fewest rows that find nearly every row's drop (or the
 reference's) in each cell (:func:`fewest_rows`): run on screening episodes (``seed:=6600
 out:=results/verdict-screening``), it is how the quick budget's rows are chosen, never on the scorecard's own
 episodes.
@@ -29,7 +30,7 @@ from pathlib import Path
 from .. import seeds
 from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
-from ..provenance import portable
+from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, adversary_path
 from ..report.stats import paired_drop
 from ..scorecard import BUDGETS, ScorecardConfig, scorecard
@@ -124,7 +125,7 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
     # the measured figures alone: the budget's verdict is judged from them on every read
     figures = {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
                "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
-               "reference": reference(env, policy, mode, episodes, cfg.seed, card)}
+               "reference": reference(env, policy, mode, episodes, cfg.seed, card), "cpu": cpu()}
     done.write_text(json.dumps(figures, indent=1) + "\n")
     return judged(figures)
 
@@ -161,7 +162,9 @@ def fewest_rows(cells: list[dict], mode: str, within: float = WITHIN) -> tuple[s
 
 def table(rows: list[dict], budgets: list[str]) -> str:
     """The benchmark's table: per cell the black-box drop and ratio per budget (– where that budget is still to
-    score), the reference and the minutes."""
+    score), the reference and the minutes. A budget's ratio is to the reference scored with it, on its machine (the
+    same files give other episodes on another CPU model): where that is not the first budget's, the ratio names its
+    reference and CPU."""
     head = "| env | policy | mode | clean | " + " | ".join(
         f"{b} black-box drop [95%] | {b} ratio | {b} min" for b in budgets) + " | reference drop |"
     lines = [head, "|" + "---|" * (5 + 3 * len(budgets))]
@@ -170,11 +173,21 @@ def table(rows: list[dict], budgets: list[str]) -> str:
         ref = first["reference"]
         parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
                  f"({c['black_box_worst']}) | "
-                 f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f} | {c['minutes']:.1f}" if c else "– | – | –"
+                 f"{ratio(c, first)} | {c['minutes']:.1f}" if c else "– | – | –"
                  for c in (cell.get(b) for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
                      + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}) |")
     return "\n".join(lines) + "\n"
+
+
+def ratio(cell: dict, first: dict) -> str:
+    """A budget's black-box drop over the reference scored with it; its reference and CPU named where they are not
+    those of the row's first budget (whose reference the table's last column shows)."""
+    ref = cell["reference"]["drop_pct"]
+    text = f"{cell['black_box_drop_pct'] / ref:.2f}"
+    if (ref, cell.get("cpu")) != (first["reference"]["drop_pct"], first.get("cpu")):
+        text += f" (of {ref:+.1f}%, {cell.get('cpu', 'CPU not recorded')})"
+    return text
 
 
 def main(argv=None) -> None:
@@ -188,10 +201,10 @@ def main(argv=None) -> None:
             for mode in comma_list(cfg.modes)]
     for env, policy, mode in grid:
         cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
-        ref = cell[budgets[0]]["reference"]
-        print(f"{env} {policy} {mode}: reference {ref['drop_pct']:+.1f}% ({ref['attack']}); " + "; ".join(
-            f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}, ratio "
-            f"{c['black_box_drop_pct'] / ref['drop_pct']:.2f}, {c['minutes']:.1f} min)"
+        print(f"{env} {policy} {mode}: " + "; ".join(
+            f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}) against the reference's "
+            f"{c['reference']['drop_pct']:+.1f}% ({c['reference']['attack']}): ratio "
+            f"{c['black_box_drop_pct'] / c['reference']['drop_pct']:.2f}, {c['minutes']:.1f} min"
             for b, c in cell.items()), flush=True)
         # the table after every cell, of every cell of the grid scored so far (by this run or an earlier one): a run
         # stopped midway leaves the whole of what was measured
