@@ -29,7 +29,7 @@ from .args import arg, comma_list
 from .attacks import FGSMk
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
-from .provenance import portable, stamp
+from .provenance import cpu, portable, stamp
 from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_ROW,
                        TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack, surrogate_path,
                        check_name, user_calibration)
@@ -203,7 +203,8 @@ class AttackTableConfig:
                       low=0, high=1000)
     rows: str = arg("", f"comma-separated rows to run ({', '.join(ATTACK_ROWS)}; default: every one, "
                         "aril_a_search where search > 0); an env already in the output keeps its other rows when they "
-                        f"were run with the same {', '.join(KEPT_SETTINGS)}, else names the one that differs")
+                        f"were run with the same {', '.join(KEPT_SETTINGS)} on the same CPU model, else names what "
+                        "differs")
     adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet", low=1, high=10**9)
     retrain: bool = arg(False, "train ARIL-A even if a bundled adversary exists")
     adversary_dir: str = arg("runs", "where adversaries against a victim other than the bundled learner go")
@@ -300,12 +301,12 @@ def _iterations(row: str, k: int) -> int:
 
 def _earlier_cells(json_path: Path, cfg: AttackTableConfig, rows: list[str]) -> dict:
     """Per env, the cells of an earlier run in ``json_path`` (same mode and victim), which this run keeps where it
-    does not run their ``rows`` again: every one made with the same :data:`KEPT_SETTINGS`; a cell made with others
-    is an error naming the setting."""
+    does not run their ``rows`` again: every one made with the same :data:`KEPT_SETTINGS` on this CPU model (the
+    same files give other episodes on another); a cell made with others, or elsewhere, is an error naming which."""
     old = json.loads(json_path.read_text()) if json_path.exists() else {}
     if (old.get("mode"), old.get("victim")) != (cfg.mode, cfg.policy):
         return {}
-    kept = {}
+    kept, here = {}, cpu()
     for row in old["rows"]:
         for name, cell in row["cells"].items():
             differ = [s for s in KEPT_SETTINGS if cell["settings"].get(s) != getattr(cfg, s)]
@@ -314,6 +315,11 @@ def _earlier_cells(json_path: Path, cfg: AttackTableConfig, rows: list[str]) -> 
                                  + ", ".join(f"{s}:={cell['settings'].get(s)}" for s in differ) + " (this run: "
                                  + ", ".join(f"{s}:={getattr(cfg, s)}" for s in differ)
                                  + "); run it again too (add it to rows:=) or leave rows:= unset")
+            elsewhere = cell.get("versions", {}).get("cpu")
+            if elsewhere != here and name not in rows:
+                raise ValueError(f"rows:={cfg.rows}: {json_path}'s {row['env']} {name} row was run on {elsewhere} "
+                                 f"(this machine: {here}), whose episodes differ from the same files; run the table "
+                                 "on one machine: leave rows:= unset")
             kept.setdefault(row["env"], {})[name] = cell
     return kept
 

@@ -64,6 +64,11 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     assert rerun["fd_fgsm"]["mean"] == cells["fd_fgsm"]["mean"] and "rows:=fd_fgsm" in rerun["fd_fgsm"]["command"]
     with pytest.raises(ValueError, match=r"Swimmer-v5 \w+ row was run with k:=3 .this run: k:=2"):
         attack_table(AttackTableConfig(k=2, rows="fd_fgsm", **table_args), **QUIET)
+    elsewhere = json.loads((tmp_path / "attacks.json").read_text())
+    elsewhere["rows"][0]["cells"]["random"]["versions"]["cpu"] = "Another CPU (AVX2)"
+    (tmp_path / "attacks.json").write_text(json.dumps(elsewhere))
+    with pytest.raises(ValueError, match=r"Swimmer-v5 random row was run on Another CPU \(AVX2\) .this machine: "):
+        attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **table_args), **QUIET)
     with pytest.raises(ValueError, match="no clean row of Swimmer-v5"):
         attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **{**table_args, "out": str(tmp_path / "new")}), **QUIET)
     with pytest.raises(ValueError, match="row"):
