@@ -84,8 +84,9 @@ COMMANDS = {
     "calibrate-eps": Command(CalibrationConfig, calibrate_eps,
                              "Pick eps per env and mode by the paper's rule (FGSM drop <= 40%)."),
     "attack-table": Command(AttackTableConfig, attack_table,
-                            "The paper's Adversary rows (clean, random, FGSM, FGSM^k, SPSA^k, ARIL-A, "
-                            "ARIL-A + search); writes results/."),
+                            "The paper's Adversary rows (clean, random, FGSM, FGSM^k, SPSA^k, ARIL-A) and the "
+                            "black-box ones beside them (FGSM^k by finite differences, on a surrogate, ARIL-A + "
+                            "search, and with FGSM^k by finite differences among its candidates); writes results/."),
     "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
                              "strongest attack against it; writes results/."),
     "report": Command(ReportConfig, build_report,
