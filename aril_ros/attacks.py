@@ -258,30 +258,20 @@ class LearnedAttack(QueryAttack):
 
     With ``search = K > 0`` (query-time search) it draws K candidates, adds the one it ranks highest,
     asks the victim for its actions on all K + 1 in one batch and applies the one with the largest
-    disagreement: the learned prior picks where to look, the queries pick the best. With ``fd_candidate = k > 0``
-    the search weighs one candidate more, FGSM^k by finite differences at ``k`` iterations
-    (:class:`FiniteDifferenceFGSM`): the gradient's corner of the box beside the prior's draws, the larger one-step
-    disagreement applied (on Ant sensory, screening episodes, it took more than either alone; on HalfCheetah and
-    Swimmer less than the search alone, whose learned strategy it interrupts: a row of its own, not the search's
-    default). With ``eps`` other than the one it was trained with, every perturbation is scaled by
-    ``eps / trained eps`` (eps sweeps: the same learned direction, a different budget). Queries per step: 1 if it
-    takes actions, + K + 1, + FGSM^k by finite differences' ``k (2 n + 1) + 1``."""
+    disagreement: the learned prior picks where to look, the queries pick the best. With ``eps`` other
+    than the one it was trained with, every perturbation is scaled by ``eps / trained eps`` (eps sweeps:
+    the same learned direction, a different budget). Queries per step: 1 if it takes actions, + K + 1."""
 
     name = "aril_a"
 
     def __init__(self, layout: ObsLayout, net: AdversaryNet, stochastic: bool = True, eps: float | None = None,
-                 victim=None, expert=None, search: int = 0, fd_candidate: int = 0):
+                 victim=None, expert=None, search: int = 0):
         super().__init__(layout, net.eps if eps is None else eps, victim, expert)
-        if search < 0 or fd_candidate < 0:
-            raise ValueError(f"search and fd_candidate must be >= 0, got {search} and {fd_candidate}")
-        if fd_candidate and not search:
-            raise ValueError(f"fd_candidate:={fd_candidate} is a candidate of the query-time search: set search:=K "
-                             "(K > 0) too")
+        if search < 0:
+            raise ValueError(f"search must be >= 0 candidates, got {search}")
         self.net, self.stochastic, self.search = net, stochastic, int(search)
         self.require_answers()
         self.scale = self.eps / net.eps
-        self.gradient = (FiniteDifferenceFGSM(layout, self.eps, victim, expert, steps=fd_candidate)
-                         if fd_candidate else None)
 
     @property
     def asks_victim(self) -> bool:
@@ -303,10 +293,6 @@ class LearnedAttack(QueryAttack):
         candidates *= self.scale
         if not self.search:
             return candidates[:, -1]
-        if self.gradient is not None:
-            candidates = np.concatenate([candidates, self.gradient.propose(true_obs, rngs)[:, None]], axis=1)
-            self.queries += self.gradient.queries  # its questions are this attack's: counted once, here
-            self.gradient.queries = 0
         best = self.losses(true_obs, candidates, label).argmax(1)
         return candidates[np.arange(n), best]
 
@@ -340,17 +326,13 @@ def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: i
 
 def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=None, steps: int | None = None,
                 adversary: str | None = None, mode: str | None = None, rescale: bool = False,
-                search: int = 0, samples: int | None = None, fd_candidate: int = 0) -> Attack:
+                search: int = 0, samples: int | None = None) -> Attack:
     """An attack by name. The white-box ones (fgsm, fgsm_k) need the victim and the expert; transfer the expert
     and a surrogate file (``adversary``), on which it runs FGSM^k (``steps``), never asking the victim; spsa asks
     both for actions only (``steps``: its iterations, ``samples``: its directions per iteration); aril_a
     needs an adversary file (default: the bundled one against the bundled learner; its eps is the one it
     was trained with, unless ``rescale`` scales it to ``eps``) and, when it takes actions or searches
-    (``search`` candidates, and FGSM^k by finite differences at ``fd_candidate`` iterations among them), the victim
-    and the expert to query."""
-    if fd_candidate and name != "aril_a":
-        raise ValueError(f"fd_candidate:={fd_candidate} is a candidate of aril_a's query-time search, got attack "
-                         f"{name}")
+    (``search`` candidates), the victim and the expert to query."""
     check_name("attack", name, ATTACKS)
     if name == "transfer":
         if not adversary:
@@ -361,7 +343,7 @@ def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=No
         return TransferFGSM(layout, eps, load_policy(adversary, layout.env_id), expert,
                             **({} if steps is None else {"steps": steps}))
     if name == "aril_a":
-        return _learned_attack(layout, eps, adversary, mode, rescale, victim, expert, search, fd_candidate)
+        return _learned_attack(layout, eps, adversary, mode, rescale, victim, expert, search)
     if name in WHITE_BOX or name in QUERY_ATTACKS:
         kwargs = {} if steps is None else {"steps": steps}
         if name == "spsa" and samples is not None:
@@ -371,10 +353,10 @@ def make_attack(name: str, layout: ObsLayout, eps: float, victim=None, expert=No
 
 
 def _learned_attack(layout: ObsLayout, eps: float, adversary: str | None, mode: str | None, rescale: bool,
-                    victim, expert, search: int, fd_candidate: int) -> LearnedAttack:
+                    victim, expert, search: int) -> LearnedAttack:
     _, net = learned_adversary(layout.env_id, mode, adversary, eps, rescale)
     return LearnedAttack(layout, net, eps=learned_eps(net, eps, rescale), victim=victim, expert=expert,
-                         search=search, fd_candidate=fd_candidate)
+                         search=search)
 
 
 def learned_adversary(env_id: str, mode: str | None, adversary: str | None = None, eps: float = 0.0,

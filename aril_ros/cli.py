@@ -86,7 +86,7 @@ COMMANDS = {
     "attack-table": Command(AttackTableConfig, attack_table,
                             "The paper's Adversary rows (clean, random, FGSM, FGSM^k, SPSA^k, ARIL-A) and the "
                             "black-box ones beside them (FGSM^k by finite differences, on a surrogate, ARIL-A + "
-                            "search, and with FGSM^k by finite differences among its candidates); writes results/."),
+                            "search); writes results/."),
     "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
                              "strongest attack against it; writes results/."),
     "report": Command(ReportConfig, build_report,

@@ -36,8 +36,6 @@ class EvalConfig:
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary (plus the one "
                          "it ranks highest), the victim queried on all, the most damaging applied (0: no search)",
                       low=0, high=1000)
-    fd_candidate: int = arg(0, "aril_a with search:=K: FGSM^k by finite differences at this many iterations joins the "
-                               "search's candidates (0: none)", low=0, high=1000)
     attack_file: str = arg("", "aril_a: the adversary file (from aril train-adversary); transfer: the surrogate file "
                                 "(aril fit-surrogate)")
     rescale: bool = arg(False, "aril_a at an eps:= other than its own: scale its perturbation by eps / its eps")
@@ -60,8 +58,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     expert = resolve_policy(cfg.expert, cfg.env)
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k or None, samples=cfg.samples or None,
-                         adversary=choice.file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search,
-                         fd_candidate=cfg.fd_candidate)
+                         adversary=choice.file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
     started = time.time()
     episodes = [EpisodeStats(e) for e in range(cfg.episodes)]

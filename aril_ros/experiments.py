@@ -30,9 +30,9 @@ from .attacks import FGSMk
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
 from .provenance import cpu, portable, stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_FD_ROW,
-                       SEARCH_ROW, TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack,
-                       surrogate_path, check_name, user_calibration)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_ROW,
+                       TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack, surrogate_path,
+                       check_name, user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
 from .verdict import ready_surrogate
@@ -43,17 +43,12 @@ the one attack that asks the victim nothing while it runs."""
 FD_ROW = "fd_fgsm"
 """FGSM^k by finite differences (:class:`aril_ros.attacks.FiniteDifferenceFGSM`) at FGSM^k's iterations: the
 black-box FGSM^k, two questions per perturbed entry an iteration."""
-SEARCHES = (SEARCH_ROW, SEARCH_FD_ROW)
-"""The rows that run ARIL-A with query-time search (``search:=``), the second with FGSM^k by finite differences among
-its candidates: strongest of the black-box rows on Ant sensory's screening episodes, where the search alone fell
-short of white-box FGSM^k (results/aril_a_tuning.md)."""
-ATTACK_ROWS = ("none", *THREATS, FD_ROW, TRANSFER_ROW, *SEARCHES)
+ATTACK_ROWS = ("none", *THREATS, FD_ROW, TRANSFER_ROW, SEARCH_ROW)
 """The rows of the attack tables: clean, then each attack."""
 KEPT_SETTINGS = ("policy", "expert", "calibration", "episodes", "seed", "k", "search", "horizon")
 """The settings a cell kept from an earlier run (``rows:=`` naming others) must share with the run: those that
 change its figure or the table's other cells' meaning."""
-ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences",
-             SEARCH_FD_ROW: "ARIL-A + search with FGSM^k by finite differences"}
+ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences"}
 
 
 def _cell(result: dict) -> dict:
@@ -204,10 +199,10 @@ class AttackTableConfig:
                     low=0, high=2**31 - 1)
     k: int = arg(0, "iterations of FGSM^k and of FGSM^k by finite differences (0: 10), and of SPSA^k (0: 5)",
                  low=0, high=1000)
-    search: int = arg(TABLE_SEARCH, "candidates of ARIL-A's query-time search in its own rows (0: no such rows)",
+    search: int = arg(TABLE_SEARCH, "candidates of ARIL-A's query-time search in its own row (0: no such row)",
                       low=0, high=1000)
-    rows: str = arg("", f"comma-separated rows to run ({', '.join(ATTACK_ROWS)}; default: every one, the ARIL-A + "
-                        "search rows where search > 0); an env already in the output keeps its other rows when they "
+    rows: str = arg("", f"comma-separated rows to run ({', '.join(ATTACK_ROWS)}; default: every one, "
+                        "aril_a_search where search > 0); an env already in the output keeps its other rows when they "
                         f"were run with the same {', '.join(KEPT_SETTINGS)} on the same CPU model, else names what "
                         "differs")
     adversary_steps: int = arg(1_000_000, "ARIL-A training steps when no adversary file exists yet", low=1, high=10**9)
@@ -244,7 +239,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                      else Path(cfg.adversary_dir) / f"surrogate-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
         if TRANSFER_ROW in rows_of:
             surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
-        if {"aril_a", *SEARCHES} & set(rows_of):
+        if {"aril_a", SEARCH_ROW} & set(rows_of):
             wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                           steps=cfg.adversary_steps, out=str(adversary)))
         files = {"aril_a": adversary, TRANSFER_ROW: surrogates.get(env)}
@@ -254,8 +249,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                           eps=0.0 if attack == "none" else eps, k=_iterations(row, cfg.k),
                                           attack_file=str(files[attack]) if attack in files else "",
-                                          search=cfg.search if row in SEARCHES else 0,
-                                          fd_candidate=(cfg.k or FGSMk.STEPS) if row == SEARCH_FD_ROW else 0,
+                                          search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
     with session(cfg.workers, cfg.address):  # one Ray for the trainings and the evaluations
         ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)  # every env's at once, as tasks
@@ -297,7 +291,7 @@ def table_rows(cfg: AttackTableConfig) -> list[str]:
     """The rows this run evaluates: ``rows:=``'s, else every one (ARIL-A + search where ``search`` > 0)."""
     if cfg.rows:
         return [check_name("row", r, ATTACK_ROWS) for r in comma_list(cfg.rows)]
-    return [r for r in ATTACK_ROWS if cfg.search or r not in SEARCHES]
+    return [r for r in ATTACK_ROWS if cfg.search or r != SEARCH_ROW]
 
 
 def _iterations(row: str, k: int) -> int:
@@ -338,10 +332,8 @@ def attack_markdown(payload: dict) -> str:
     table = "Table 1" if payload["mode"] == "sensory" else "Table 2"
     lines = [f"# {table} ({payload['mode']} attacks), Adversary rows — victim: {payload['victim']}", "",
              "Return, mean ± std over deterministic episodes, and the drop from clean; FGSM and FGSM^k are "
-             "white-box (the victim's gradients), the others black-box: SPSA^k, FGSM^k by finite differences and "
-             "ARIL-A + search query the victim's actions (queries per step in the last column; the last row's search "
-             "weighs FGSM^k by finite differences beside the adversary's draws), ARIL-A maps the state to a "
-             "perturbation, FGSM^k "
+             "white-box (the victim's gradients), the others black-box: SPSA^k and ARIL-A + search query the "
+             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation, FGSM^k "
              "on a surrogate attacks a copy fitted to the victim's answers (its questions and fidelity in the JSON). "
              "Each cell's episodes, seeds, adversary and command are in the JSON.", "",
              "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs)

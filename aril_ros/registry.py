@@ -41,18 +41,15 @@ ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^
 """Every attack by name, with the name tables print."""
 SEARCH_ROW = "aril_a_search"
 """A row of the tables and the scorecard: aril_a with query-time search (``search:=K`` candidates a step)."""
-SEARCH_FD_ROW = "aril_a_search_fd"
-"""A row of the attack tables: ARIL-A + search with FGSM^k by finite differences among the search's candidates
-(``fd_candidate:=``, at FGSM^k's iterations)."""
 SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search"}
 """What a scorecard's rows name: the attacks, and two ways its black-box pipeline runs aril_a (an adversary of the
 zoo as it is; its own with query-time search)."""
 
 
 def row_attack(row: str) -> str:
-    """The attack a table's or a scorecard's row runs: aril_a for the zoo's row and the ARIL-A + search ones, which
-    differ from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
-    return "aril_a" if row in ("zoo", SEARCH_ROW, SEARCH_FD_ROW) else row
+    """The attack a table's or a scorecard's row runs: aril_a for the zoo's row and ARIL-A + search, which differ
+    from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
+    return "aril_a" if row in ("zoo", SEARCH_ROW) else row
 
 
 SURROGATE_ATTACKS = ("transfer",)

@@ -5,8 +5,7 @@ fgsm_k | spsa | aril_a), ``eps``, ``seed``, ``expert`` (the label of fgsm, fgsm_
 testbed's own file, loaded here), ``k`` (steps of fgsm_k and spsa; 0: the attack's default), ``samples``
 (spsa's directions per step; 0: its default); for the white-box attacks ``victim`` (the attacked policy: a
 bundled name or a file); for aril_a ``attack_file``
-(an adversary file), ``search`` (query-time search over this many candidates; 0: none) and ``fd_candidate``
-(FGSM^k by finite differences at this many iterations among the candidates; 0: none). ``eps`` 0
+(an adversary file) and ``search`` (query-time search over this many candidates; 0: none). ``eps`` 0
 takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
 :func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations.
 
@@ -66,7 +65,7 @@ class AttackerNode(Node):
                     if white_box or attack in SURROGATE_ATTACKS or self.probes is not None else None),
             steps=declared(self, "k", 0) or None, samples=declared(self, "samples", 0) or None,
             adversary=declared(self, "attack_file", ""), mode=self.mode, search=declared(self, "search", 0),
-            rescale=declared(self, "rescale", False), fd_candidate=declared(self, "fd_candidate", 0))
+            rescale=declared(self, "rescale", False))
         if self.probes is not None and not self.attack.asks_victim:  # an adversary of the state alone, no search
             self.probes.close()
             self.probes = None

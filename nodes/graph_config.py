@@ -38,8 +38,6 @@ class GraphConfig:
                                 "(aril fit-surrogate)")
     search: int = arg(0, "aril_a: query-time search over this many candidates drawn from the adversary, the policy "
                          "node asked about all (probes), the most damaging applied (0: no search)", low=0, high=1000)
-    fd_candidate: int = arg(0, "aril_a with search:=K: FGSM^k by finite differences at this many iterations joins the "
-                               "search's candidates, its questions probes too (0: none)", low=0, high=1000)
     probe_batches: bool = arg(True, "query-based attacks: ask a step's probes in one message (a probe batch) where the "
                                     "policy node declares its probe_batches parameter true, as the bundled one does "
                                     "(false: one message a probe, as to a node that does not)")
@@ -71,7 +69,7 @@ class GraphConfig:
 
 
 ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
-                         "samples": ("spsa",), "fd_candidate": ("aril_a",)}
+                         "samples": ("spsa",)}
 """Arguments that some attacks alone read, and those attacks."""
 
 
@@ -105,7 +103,7 @@ class GraphRun:
         """Every setting of the attack as it runs (k and samples: the attack's own defaults for 0)."""
         cfg = self.cfg
         return {"attack": self.attack, "eps": self.eps, **iteration_settings(self.attack, cfg.k, cfg.samples),
-                "search": cfg.search, "fd_candidate": cfg.fd_candidate, "rescale": cfg.rescale, "seed": cfg.seed}
+                "search": cfg.search, "rescale": cfg.rescale, "seed": cfg.seed}
 
     def metadata(self) -> dict:
         """The log's run record (:data:`aril_ros.runlog.layout.RUN`)."""
@@ -130,8 +128,7 @@ class GraphRun:
             "simulator": {**common, "horizon": cfg.horizon,
                           **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
-                         "k": cfg.k, "samples": cfg.samples, "search": cfg.search,
-                         "fd_candidate": cfg.fd_candidate, "expert": expert,
+                         "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
                          "rescale": cfg.rescale, "probe_batches": cfg.probe_batches,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"attack_file": str(self.adversary)} if self.adversary else {})},

@@ -31,8 +31,8 @@ def clean_baseline(cfg: GraphConfig, attacked: dict) -> dict:
     run, from a clean run of the graph with it (recorded beside the attacked log)."""
     if cfg.policy == "external":
         record = (str(Path(attacked["record"]).with_suffix("")) + "-clean.mcap") if attacked["record"] else "off"
-        clean = dataclasses.replace(cfg, mode="clean", attack="", attack_file="", search=0, fd_candidate=0,
-                                    rescale=False, k=0, samples=0, eps=0.0, record=record, domain=str(attacked["domain"]))
+        clean = dataclasses.replace(cfg, mode="clean", attack="", attack_file="", search=0, rescale=False, k=0,
+                                    samples=0, eps=0.0, record=record, domain=str(attacked["domain"]))
         return {**Orchestrator(clean, log=lambda *a, **k: None).run(), "source": "graph"}
     from aril_ros.evaluation import EvalConfig, evaluate
 

@@ -164,33 +164,6 @@ def test_query_time_search_applies_the_most_damaging_candidate(swimmer_files, tm
     assert loss(delta).mean() > loss(drawn.perturb(obs, rngs())).mean()
 
 
-def test_the_search_weighs_fgsm_k_by_finite_differences_beside_the_draws(swimmer_files, tmp_path):
-    """fd_candidate:=k: FGSM^k by finite differences joins the search's candidates; each state gets the larger
-    disagreement of the search's pick and FGSM^k's, within the bound, every question counted; it is the search's
-    candidate and is refused without a search or for another attack."""
-    victim, expert = swimmer_files
-    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert),
-                                           steps=0, out=str(tmp_path / "adv.pt")), log=lambda *a, **k: None)
-    black_box, labeller = answering(victim, expert)
-    layout = layout_of("Swimmer-v5")
-    obs = np.random.default_rng(0).normal(size=(40, 8))
-    rngs = lambda: [np.random.default_rng([2, i]) for i in range(40)]  # noqa: E731
-    both = make_attack("aril_a", layout, 0.2, black_box, labeller, adversary=str(path), search=8, fd_candidate=3)
-    delta = both.perturb(obs, rngs())
-    assert both.queries_per_step == 1 + 9 + 3 * (2 * 3 + 1) + 1 + 1  # input action, draws, FGSM^k's, its candidate
-    assert np.all(np.abs(delta[:, :3]) <= 0.2 + 1e-12) and np.all(delta[:, 3:] == 0)
-    loss = lambda d: ((black_box.act(obs + d) - labeller.act(obs)) ** 2).sum(1)  # noqa: E731
-    searched = make_attack("aril_a", layout, 0.2, black_box, labeller, adversary=str(path), search=8)
-    gradient = make_attack("fd_fgsm", layout, 0.2, black_box, labeller, steps=3)
-    np.testing.assert_array_equal(loss(delta), np.maximum(loss(searched.perturb(obs, rngs())),
-                                                          loss(gradient.perturb(obs, rngs()))))
-    with pytest.raises(ValueError, match="fd_candidate:=3 is a candidate of the query-time search: set search:=K"):
-        make_attack("aril_a", layout, 0.2, black_box, labeller, adversary=str(path), fd_candidate=3)
-    with pytest.raises(ValueError, match="fd_candidate:=3 is a candidate of aril_a's query-time search, got attack "
-                                         "spsa"):
-        make_attack("spsa", layout, 0.2, black_box, labeller, fd_candidate=3)
-
-
 def test_a_gaussian_state_only_adversary_asks_no_queries(swimmer_files, tmp_path):
     """The adversaries made before the categorical policy: a Gaussian on the state alone, no victim needed."""
     victim, expert = swimmer_files

@@ -45,36 +45,31 @@ def message_counts(log) -> dict[str, int]:
 @pytest.mark.slow
 @pytest.mark.parametrize("mode, attack, batches", [("sensory", "spsa", True), ("physical", "spsa", True),
                                                    ("physical", "aril_a", True), ("sensory", "fd_fgsm", True),
-                                                   ("sensory", "spsa", False), ("sensory", "aril_a+fd", True)])
+                                                   ("sensory", "spsa", False)])
 def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mode, attack, batches, tmp_path):
-    """aril_a+fd: aril_a's search with FGSM^k by finite differences (2 iterations) among its candidates."""
     from aril_ros.adversary import AdversaryConfig, train_adversary
 
     env_id, horizon = "Swimmer-v5", 25
     policy, expert = policy_files(tmp_path, env_id)
-    adversary, fd_candidate = None, 2 if attack == "aril_a+fd" else 0
-    attack = attack.removesuffix("+fd")
+    adversary = None
     if attack == "aril_a":  # takes the victim's and the expert's actions (1 probe), and searches (4 + 1 more)
         adversary = str(train_adversary(AdversaryConfig(env=env_id, mode=mode, eps=0.1, victim=str(policy),
                                                         expert=str(expert), steps=0, out=str(tmp_path / "adv.pt")),
                                         log=lambda *a, **k: None))
     log = tmp_path / "run.mcap"
-    knobs = {"spsa": ("k:=2",), "fd_fgsm": ()}.get(attack, (f"attack_file:={adversary}", "search:=4",
-                                                            f"fd_candidate:={fd_candidate}"))
+    knobs = {"spsa": ("k:=2",), "fd_fgsm": ()}.get(attack, (f"attack_file:={adversary}", "search:=4"))
     summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
                                    f"attack:={attack}", "eps:=0.1", "episodes:=2", f"horizon:={horizon}", "seed:=4",
                                    f"record:={log}", f"probe_batches:={batches}", *knobs))
     victim, labeller = load_policy(policy), load_policy(expert)
     engine_attack = make_attack(attack, layout_of(env_id), 0.1, victim=victim, expert=labeller,
                                 steps=2 if attack == "spsa" else None, adversary=adversary, mode=mode,
-                                search=4 if attack == "aril_a" else 0, fd_candidate=fd_candidate)
+                                search=4 if attack == "aril_a" else 0)
     traj = RolloutEngine(env_id, victim, labeller, engine_attack, mode, n_envs=2, horizon=horizon).rollout(2, seed=4)
     run = read_run(log)
     assert_same_steps(run, traj)
-    # every step asked as many probes as the engine's attack did, and the summary says so (aril_a+fd: FGSM^k by
-    # finite differences' 2 (2 * 3 + 1) + 1 questions, and its perturbation one more candidate)
-    expected = {"spsa": 35, "fd_fgsm": 2 * 3}.get(attack, 6 + (16 if fd_candidate else 0))
-    assert engine_attack.queries_per_step == expected
+    # every step asked as many probes as the engine's attack did, and the summary says so
+    assert engine_attack.queries_per_step == {"spsa": 35, "fd_fgsm": 2 * 3}.get(attack, 6)
     assert (run.probes_per_step == engine_attack.queries_per_step).all()
     assert summary["queries_per_step"] == engine_attack.queries_per_step
     # probes are the policy's answers, kept apart: the step's action is the one applied, on what the policy saw
@@ -88,8 +83,7 @@ def test_probes_keep_the_graph_bit_exact_with_the_engine_and_are_logged_apart(mo
     assert counts["/observation"] == counts["/action"] == len(run.tags)
     # in batches, one message for each time the attack asks (spsa: the true state, then each iteration's directions;
     # aril_a: its input action, then the search's candidates); else one a probe
-    asks = ({"spsa": 1 + 2, "fd_fgsm": 1}.get(attack, 2 + (3 if fd_candidate else 0)) * len(run.tags) if batches
-            else len(run.probe_row))
+    asks = {"spsa": 1 + 2, "fd_fgsm": 1}.get(attack, 2) * len(run.tags) if batches else len(run.probe_row)
     assert counts["/probe/observation"] == counts["/probe/action"] == asks
 
 
