@@ -336,7 +336,7 @@ def attack_markdown(payload: dict) -> str:
              "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation, FGSM^k "
              "on a surrogate attacks a copy fitted to the victim's answers (its questions and fidelity in the JSON). "
              "Each cell's episodes, seeds, adversary and command are in the JSON.", "",
-             "| attack | " + " | ".join(f"{e} (eps {cells[e]['fgsm']['eps']:g})" for e in envs)
+             "| attack | " + " | ".join(f"{e} (eps {_table_eps(cells[e])})" for e in envs)
              + " | overall | queries/step |",
              "|---|" + "---|" * len(envs) + "---|---|"]
     for attack in payload["overall_drop"]:
@@ -347,6 +347,12 @@ def attack_markdown(payload: dict) -> str:
         lines.append(f"| {ROW_NAMES[attack]} | " + " | ".join(row) + f" | {overall} | "
                      + ("–" if queries == [0] else " / ".join(f"{q:g}" for q in queries)) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _table_eps(cells: dict) -> str:
+    """An env's eps in the table's head: its attacked cells' (every row but clean; a table of some rows alone, made
+    with ``rows:=``, may lack any one of them)."""
+    return next((f"{cell['eps']:g}" for row, cell in cells.items() if row != "none"), "–")
 
 
 @dataclass

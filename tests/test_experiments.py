@@ -69,6 +69,10 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
     (tmp_path / "attacks.json").write_text(json.dumps(elsewhere))
     with pytest.raises(ValueError, match=r"Swimmer-v5 random row was run on Another CPU \(AVX2\) .this machine: "):
         attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **table_args), **QUIET)
+    some = attack_table(AttackTableConfig(k=3, rows="none,fd_fgsm", **{**table_args, "out": str(tmp_path / "some")}),
+                        **QUIET)  # a table of some rows alone, to a new file
+    assert list(some["rows"][0]["cells"]) == ["none", "fd_fgsm"]
+    assert "| Swimmer-v5 (eps 0.5) |" in (tmp_path / "some.md").read_text()
     with pytest.raises(ValueError, match="no clean row of Swimmer-v5"):
         attack_table(AttackTableConfig(k=3, rows="fd_fgsm", **{**table_args, "out": str(tmp_path / "new")}), **QUIET)
     with pytest.raises(ValueError, match="row"):
