@@ -41,10 +41,11 @@ _SQUASHES = ("tanh", "clip")
 # as in a ROS node that sees one observation at a time. A node pays a whole block for its one observation, so the
 # block is the smallest whose rounding here is that of larger ones: 16 and 64 rows give every bundled policy's and
 # adversary's outputs and gradients bit for bit, 8 do not; 16 costs the expert node 0.5 ms a step, 64 0.9 ms.
-# Not for every width on every CPU: on AVX512, MKL rounds a row of a layer whose width is no multiple of 16 (5, 7,
-# 33, 47 were tried) by its place in the block, so such a policy acts on one observation (a node) and on a batch
-# (the engine) alike only to the last bit. The widths trained here (64, 256) and every bundled file hold on both
-# AVX2 and AVX512 (tests/test_policy.py); padding the widths would fix it but change every bundled file's figures.
+# Not for every width on every CPU: on AVX512, and on an AMD EPYC's AVX2 kernels, MKL rounds a row of a layer whose
+# width is no multiple of 16 (5, 7, 33, 47 were tried) by its place in the block, so such a policy acts on one
+# observation (a node) and on a batch (the engine) alike only to the last bits. The widths trained here (64, 256)
+# and every bundled file hold on both (tests/test_policy.py); padding the widths would fix it but change every
+# bundled file's figures.
 BLOCK_ROWS = 16
 
 
