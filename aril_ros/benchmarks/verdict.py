@@ -13,10 +13,10 @@ reference drop, their ratio and the minutes the budget took, and writes every fi
 and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
 resumes from the cells already scored (a cell's figures are in its ``cell.json``, with the CPU they were scored on,
 its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
-resumed on another CPU model, whose episodes differ from the same files, is judged against its own. Below the table, per mode, the fewest rows that find nearly every row's drop (or the
-reference's) in each cell (:func:`fewest_rows`): run on screening episodes (``seed:=6600
-out:=results/verdict-screening``), it is how the quick budget's rows are chosen, never on the scorecard's own
-episodes.
+resumed on another CPU model, whose episodes differ from the same files, is judged against its own. Below the
+table, per mode, the fewest rows that find nearly every row's drop (or the reference's) in each cell
+(:func:`fewest_rows`): run on screening episodes (``seed:=6600 out:=results/verdict-screening``), it is how the quick
+budget's rows are chosen, never on the scorecard's own episodes.
 """
 from __future__ import annotations
 
