@@ -282,12 +282,13 @@ class AsNode:
 
 
 def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
-               reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)") -> dict:
+               reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)",
+               policy: str = "dagger") -> dict:
     """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop, the reference and
     the CPU they were scored on."""
     from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
-    figures = {"env": "HalfCheetah-v5", "policy": "dagger", "mode": mode, "budget": budget, "minutes": 1.0,
+    figures = {"env": "HalfCheetah-v5", "policy": policy, "mode": mode, "budget": budget, "minutes": 1.0,
                "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
                "reference": {"attack": "fgsm_k", "drop_pct": reference}, "cpu": cpu}
     return figures if episodes is None else {**figures, "episodes": episodes}
@@ -303,7 +304,7 @@ def test_benchmark_judges_a_cell_by_the_budget_rows_of_today():
     cell = judged(bench_cell({"random": -90.0, strongest_scored: -60.0}))
     assert cell["budget_rows"] == list(quick_rows)
     assert (cell["black_box_worst"], cell["black_box_drop_pct"]) == (strongest_scored, -60.0)
-    assert cell["black_box_ci95_pct"] == [-61.0, -59.0]
+    assert cell["black_box_ci95_pct"] == [-61.0, -59.0] and cell["ratio"] == pytest.approx(60.0 / 50.0)
     assert (cell["worst_of_every_row"], cell["worst_of_every_row_drop_pct"]) == ("random", -90.0)
     full = judged(bench_cell({"random": -90.0, strongest_scored: -60.0}, budget="full"))
     assert full["black_box_worst"] == "random"  # the full budget scores every row
@@ -329,24 +330,28 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     import json
     from aril_ros.benchmarks.verdict import VerdictBenchConfig, cell_folder, needed, scored_rows, table
     cfg = VerdictBenchConfig(out=str(tmp_path), episodes=20)
-    env, policy = "HalfCheetah-v5", "dagger"
-    scored_cells = {("sensory", "quick"): {"transfer": -45.0}, ("sensory", "full"): {"fd_fgsm": -55.0},
-                    ("physical", "quick"): {"aril_a": -90.0}, ("physical", "full"): {"aril_a": -66.0}}
+    env = "HalfCheetah-v5"
+    scored_cells = {("dagger", "sensory", "quick"): {"transfer": -45.0},
+                    ("dagger", "sensory", "full"): {"fd_fgsm": -55.0}, ("dagger", "physical", "quick"): {"aril_a": -90.0},
+                    ("bc", "physical", "quick"): {"aril_a": -70.0}, ("bc", "physical", "full"): {"aril_a": -66.0}}
     elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)"}
-    for (mode, budget), drops in scored_cells.items():
+    for (policy, mode, budget), drops in scored_cells.items():
         folder = cell_folder(cfg, env, policy, mode, budget)
         folder.mkdir(parents=True)
-        figures = bench_cell(drops, budget=budget, mode=mode, episodes=20,
-                             **(elsewhere if (mode, budget) == ("physical", "full") else {}))
+        figures = bench_cell(drops, budget=budget, mode=mode, episodes=20, policy=policy,
+                             **(elsewhere if (policy, budget) == ("bc", "full") else {}))
         (folder / "cell.json").write_text(json.dumps(figures))
-    grid = [(env, policy, mode) for mode in ("sensory", "physical")] + [("Ant-v5", "bc", "sensory")]
+    grid = [(env, "dagger", mode) for mode in ("sensory", "physical")] + [("Ant-v5", "bc", "sensory"),
+                                                                          (env, "bc", "physical")]
     rows = scored_rows(cfg, grid, ["quick", "full"])
-    assert [sorted(row) for row in rows] == [["full", "quick"], ["full", "quick"]]  # Ant BC: nothing scored, no row
+    assert [sorted(row) for row in rows] == [["full", "quick"], ["quick"], ["full", "quick"]]  # Ant BC: no row
     lines = table(rows, ["quick", "full"]).splitlines()
     assert "| -45.0% [-46.0, -44.0] (transfer) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
-    assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | -66.0% [-67.0, -65.0] (aril_a) | "
+    assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
+    assert lines[4].startswith("| HalfCheetah-v5 | bc | physical |")
+    assert lines[4].endswith("| -70.0% [-71.0, -69.0] (aril_a) | 1.40 | 1.0 | -66.0% [-67.0, -65.0] (aril_a) | "
                              "1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 | -50.0% (fgsm_k) |")
-    full_alone = scored_rows(cfg, [(env, policy, "physical")], ["full"])
+    full_alone = scored_rows(cfg, [(env, "bc", "physical")], ["full"])
     assert table(full_alone, ["full"]).splitlines()[2].endswith("| 1.10 | 1.0 | -60.0% (fgsm_k) |")
     assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
 

@@ -133,13 +133,15 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
 def judged(figures: dict) -> dict:
     """A cell's figures with its budget's verdict: the worst of the rows the budget scores by default (every row is
     run, and kept, to show which), judged again on every read, so a cell scored before the budget's rows changed
-    gives the verdict of today's rows; and the worst of every row beside it."""
+    gives the verdict of today's rows, and its ratio to the reference scored with it; and the worst of every row
+    beside it."""
     drops, budget = figures["drops"], BUDGETS[figures["budget"]]
     rows = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
     worst = min(rows, key=lambda row: drops[row]["drop_pct"])
     worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
     return {**figures, "budget_rows": list(rows), "black_box_worst": worst,
             "black_box_drop_pct": drops[worst]["drop_pct"], "black_box_ci95_pct": drops[worst]["ci95_pct"],
+            "ratio": drops[worst]["drop_pct"] / figures["reference"]["drop_pct"],
             "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
 
 
@@ -184,7 +186,7 @@ def ratio(cell: dict, first: dict) -> str:
     """A budget's black-box drop over the reference scored with it; its reference and CPU named where they are not
     those of the row's first budget (whose reference the table's last column shows)."""
     ref = cell["reference"]["drop_pct"]
-    text = f"{cell['black_box_drop_pct'] / ref:.2f}"
+    text = f"{cell['ratio']:.2f}"
     if (ref, cell.get("cpu")) != (first["reference"]["drop_pct"], first.get("cpu")):
         text += f" (of {ref:+.1f}%, {cell.get('cpu', 'CPU not recorded')})"
     return text
@@ -203,8 +205,8 @@ def main(argv=None) -> None:
         cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
         print(f"{env} {policy} {mode}: " + "; ".join(
             f"{b} {c['black_box_drop_pct']:+.1f}% ({c['black_box_worst']}) against the reference's "
-            f"{c['reference']['drop_pct']:+.1f}% ({c['reference']['attack']}): ratio "
-            f"{c['black_box_drop_pct'] / c['reference']['drop_pct']:.2f}, {c['minutes']:.1f} min"
+            f"{c['reference']['drop_pct']:+.1f}% ({c['reference']['attack']}): ratio {c['ratio']:.2f}, "
+            f"{c['minutes']:.1f} min"
             for b, c in cell.items()), flush=True)
         # the table after every cell, of every cell of the grid scored so far (by this run or an earlier one): a run
         # stopped midway leaves the whole of what was measured
