@@ -309,18 +309,20 @@ def _earlier_cells(json_path: Path, cfg: AttackTableConfig, rows: list[str]) -> 
     kept, here = {}, cpu()
     for row in old["rows"]:
         for name, cell in row["cells"].items():
+            kept.setdefault(row["env"], {})[name] = cell
+            if name in rows:  # run again: its settings and machine are this run's
+                continue
             differ = [s for s in KEPT_SETTINGS if cell["settings"].get(s) != getattr(cfg, s)]
-            if differ and name not in rows:
+            if differ:
                 raise ValueError(f"rows:={cfg.rows}: {json_path}'s {row['env']} {name} row was run with "
                                  + ", ".join(f"{s}:={cell['settings'].get(s)}" for s in differ) + " (this run: "
                                  + ", ".join(f"{s}:={getattr(cfg, s)}" for s in differ)
                                  + "); run it again too (add it to rows:=) or leave rows:= unset")
             elsewhere = cell.get("versions", {}).get("cpu")
-            if elsewhere != here and name not in rows:
+            if elsewhere != here:
                 raise ValueError(f"rows:={cfg.rows}: {json_path}'s {row['env']} {name} row was run on {elsewhere} "
                                  f"(this machine: {here}), whose episodes differ from the same files; run the table "
                                  "on one machine: leave rows:= unset")
-            kept.setdefault(row["env"], {})[name] = cell
     return kept
 
 
