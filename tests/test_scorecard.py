@@ -370,5 +370,7 @@ def test_page_warns_when_the_worst_cases_interval_is_as_wide_as_its_drop():
     from aril_ros.report.text import too_few_episodes
     assert too_few_episodes({"drop_pct": -30.0, "ci95_pct": [-40.0, -20.0]}, 10) == []
     warning = too_few_episodes({"drop_pct": -20.0, "ci95_pct": [-45.0, 5.0]}, 10)
-    assert "10 episodes do not pin this verdict down" in warning[0] and "episodes:=" in warning[0]
+    # width 50 against a drop of 20: 1.5 x 10 x (50/20)^2 = 93.75 episodes, up to tens
+    assert "10 episodes do not pin this verdict down" in warning[0] and "`episodes:=100`" in warning[0]
     assert too_few_episodes({"drop_pct": -10.0, "ci95_pct": [-15.0, -5.0]}, 10)  # width 10 = |drop|: not narrower
+    assert "`episodes:=100`" in too_few_episodes({"drop_pct": 0.0, "ci95_pct": [-3.0, 3.0]}, 10)[0]

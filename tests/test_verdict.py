@@ -316,11 +316,53 @@ def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):
     from aril_ros.benchmarks.verdict import VerdictBenchConfig, score_cell
     folder = tmp_path / "cells" / "HalfCheetah-v5-dagger-physical-quick"
     folder.mkdir(parents=True)
-    (folder / "cell.json").write_text(json.dumps(bench_cell({}, episodes=20)))
+    (folder / "cell.json").write_text(json.dumps(bench_cell({"aril_a": -50.0}, episodes=20)))
     cfg = VerdictBenchConfig(out=str(tmp_path))
     assert score_cell(cfg, "HalfCheetah-v5", "dagger", "physical", "quick")["episodes"] == 20
     with pytest.raises(ValueError, match="cell.json was scored on 20 episodes, not 30"):
         score_cell(VerdictBenchConfig(out=str(tmp_path), episodes=30), "HalfCheetah-v5", "dagger", "physical", "quick")
+
+
+def test_benchmark_scores_a_cell_again_on_more_episodes_where_its_interval_is_as_wide_as_its_drop(tmp_path, monkeypatch):
+    """A cell whose verdict's interval is as wide as its drop is scored again on as many episodes as the scorecard's
+    page would ask a user for (at most WIDEN_AT_MOST times as many): the table keeps the wider scoring, how many
+    episodes it took and both scorings' minutes, and the first verdict beside it; a resumed run reads it as
+    scored; widen:=false keeps the first; near no drop at all, the count stops at the cap."""
+    import json
+    from aril_ros.benchmarks import verdict
+    from aril_ros.report.stats import episodes_to_pin
+
+    asked = []
+
+    def scoring(cfg, env, policy, mode, budget, episodes):  # the interval narrows as 1/sqrt(episodes)
+        asked.append(episodes)
+        half = 20.0 * (20 / episodes) ** 0.5
+        figures = bench_cell({"aril_a": -drop}, mode=mode, episodes=episodes)
+        figures["drops"]["aril_a"]["ci95_pct"] = [-drop - half, -drop + half]
+        return figures
+
+    monkeypatch.setattr(verdict, "scorecard_figures", scoring)
+    cfg, cell = verdict.VerdictBenchConfig(out=str(tmp_path), episodes=20), ("HalfCheetah-v5", "dagger", "physical", "quick")
+    drop = 30.0  # width 40 at 20 episodes: 1.5 x 20 x (40/30)^2 = 53.3, up to 60
+    widened = verdict.score_cell(cfg, *cell)
+    assert asked == [20, 60] and widened["episodes"] == 60
+    assert widened["minutes"] == 2.0 and widened["widened_from"]["episodes"] == 20
+    assert widened["widened_from"]["black_box_ci95_pct"] == [-50.0, -10.0]
+    assert episodes_to_pin(verdict.verdict_drop(widened), 60) is None
+    assert verdict.score_cell(cfg, *cell) == widened and asked == [20, 60]  # resumed: read, not scored again
+    assert "(aril_a; 60 episodes) |" in verdict.table(verdict.scored_rows(cfg, [cell[:3]], ["quick"]), ["quick"])
+
+    drop, asked[:] = 1.0, []  # near no drop: the cap, and the table says the interval is still too wide
+    near = verdict.score_cell(verdict.VerdictBenchConfig(out=str(tmp_path / "near"), episodes=20), *cell)
+    assert asked == [20, 20 * verdict.WIDEN_AT_MOST]
+    assert "(aril_a; 80 episodes; the interval still as wide as the drop) |" in verdict.table([{"quick": near}], ["quick"])
+
+    asked[:] = []
+    kept = verdict.score_cell(verdict.VerdictBenchConfig(out=str(tmp_path / "kept"), episodes=20, widen=False), *cell)
+    assert asked == [20] and "widened_from" not in kept
+    resumed = verdict.score_cell(verdict.VerdictBenchConfig(out=str(tmp_path / "kept"), episodes=20), *cell)
+    assert asked == [20, 80] and resumed["widened_from"]["episodes"] == 20  # a wide cell of an earlier run too
+    json.loads((tmp_path / "kept" / "cells" / "HalfCheetah-v5-dagger-physical-quick" / "cell.json").read_text())
 
 
 def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still_to_score(tmp_path):

@@ -5,7 +5,9 @@
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
 box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
 search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps
-(scale 1); the budget's verdict is the worst of the rows the budget scores by default (the quick budget's few; the
+(scale 1; a cell whose verdict's interval comes out as wide as its drop, as Ant's can, is scored again on about as
+many episodes as narrow it, the count the scorecard's page names to a user, reusing what the first scoring trained);
+the budget's verdict is the worst of the rows the budget scores by default (the quick budget's few; the
 full budget's every one but SPSA^k, and physical fd_fgsm), the worst of every row is kept beside it. The reference
 is the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
 2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
@@ -32,7 +34,7 @@ from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, adversary_path
-from ..report.stats import paired_drop
+from ..report.stats import episodes_to_pin, paired_drop
 from ..scorecard import BUDGETS, ScorecardConfig, scorecard
 
 BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search")
@@ -43,6 +45,9 @@ DEFAULT_EPISODES = 20
 EPISODES = {"Ant-v5": 50}
 """Episodes per cell where 20 leave the verdict's interval wider than its drop: Ant's clean episodes range from a
 dozen steps to the full horizon (issue 38: at 10 episodes its drops swung by 20-70 points)."""
+WIDEN_AT_MOST = 4
+"""A cell whose verdict's interval is as wide as its drop is scored again on at most this many times its episodes:
+near no drop at all, no count of episodes narrows the interval below it."""
 
 
 @dataclass
@@ -59,6 +64,8 @@ class VerdictBenchConfig:
     seed: int = arg(seeds.SCORECARD, "env seed of every cell's first episode: the scorecard's (the verdict), or a "
                                      f"screening one ({seeds.SCREENING}..) to choose the quick budget's rows on",
                     low=0, high=2**31 - 1)
+    widen: bool = arg(True, "where a cell's verdict has an interval as wide as its drop, score it again on about as "
+                            f"many episodes as narrow it (at most {WIDEN_AT_MOST} times as many)")
     workers: int = arg(2, "CPUs of the local Ray each scorecard's cells run on", low=1, high=1024)
     out: str = arg("runs/verdict", "the folder of the cells and the table")
 
@@ -90,29 +97,52 @@ def cell_folder(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budge
 
 
 def scored(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict | None:
-    """A cell's figures, judged, when it was scored already (on the episodes the run asks for); else None."""
+    """A cell's figures, judged, when it was scored already (on the episodes the run asks for, or widened from
+    them: :func:`score_cell`); else None."""
     done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
     if not done.exists():
         return None
     figures, episodes = json.loads(done.read_text()), episodes_of(cfg, env)
-    if figures.get("episodes", DEFAULT_EPISODES) != episodes:
-        raise ValueError(f"{done} was scored on {figures.get('episodes', DEFAULT_EPISODES)} episodes, not "
-                         f"{episodes}: give another out:= (a table's cells share their episodes)")
+    first = figures.get("widened_from", figures).get("episodes", DEFAULT_EPISODES)
+    if first != episodes:
+        raise ValueError(f"{done} was scored on {first} episodes, not {episodes}: give another out:= (a table's "
+                         "cells share their episodes)")
     return judged(figures)
 
 
 def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> dict:
-    """One scorecard of ``policy`` in ``mode`` at ``budget`` (its figures, worst black-box drop and minutes)."""
-    before = scored(cfg, env, policy, mode, budget)
-    if before:
-        return before
-    folder, episodes = cell_folder(cfg, env, policy, mode, budget), episodes_of(cfg, env)
-    done = folder / "cell.json"
+    """One scorecard of ``policy`` in ``mode`` at ``budget`` (its figures, worst black-box drop and minutes); with
+    ``widen``, where its verdict's interval is as wide as the drop, scored again on about as many episodes as
+    narrow it (at most :data:`WIDEN_AT_MOST` times as many), the scorecard reusing what it trained the first time:
+    what the scorecard's page tells a user to do."""
+    done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
+    figures = scored(cfg, env, policy, mode, budget)
+    if figures is None:
+        done.parent.mkdir(parents=True, exist_ok=True)
+        measured = scorecard_figures(cfg, env, policy, mode, budget, episodes_of(cfg, env))
+        done.write_text(json.dumps(measured, indent=1) + "\n")
+        figures = judged(measured)
+    wanted = episodes_to_pin(verdict_drop(figures), figures["episodes"])
+    if not cfg.widen or "widened_from" in figures or wanted is None:
+        return figures
+    first = {k: figures[k] for k in ("episodes", "minutes", "black_box_worst", "black_box_drop_pct",
+                                     "black_box_ci95_pct")}
+    wider = scorecard_figures(cfg, env, policy, mode, budget, min(wanted, WIDEN_AT_MOST * first["episodes"]))
+    # the minutes of both scorings: what the benchmark spent (a user scoring this many episodes at once trains once)
+    wider |= {"minutes": round(first["minutes"] + wider["minutes"], 2), "widened_from": first}
+    done.write_text(json.dumps(wider, indent=1) + "\n")
+    return judged(wider)
+
+
+def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str, episodes: int) -> dict:
+    """Score ``policy`` in ``mode`` at ``budget`` on ``episodes`` into the cell's folder (reusing the surrogate and
+    adversary a scoring there trained before): the measured figures alone, the budget's verdict is judged from them
+    on every read."""
+    folder = cell_folder(cfg, env, policy, mode, budget)
     started = time.time()
     attacks = ",".join((*BLACK_BOX_ROWS, "fgsm_k"))
-    folder.mkdir(parents=True, exist_ok=True)
-    with (folder / "scorecard.log").open("w") as log_file:
-        def log(*parts, **_):  # every line with the seconds since the cell began: where its minutes went
+    with (folder / "scorecard.log").open("a") as log_file:
+        def log(*parts, **_):  # every line with the seconds since the scoring began: where its minutes went
             print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
 
         scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget,
@@ -122,12 +152,14 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
     card = json.loads((folder / "scorecard.json").read_text())
     result = card["modes"][mode]
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
-    # the measured figures alone: the budget's verdict is judged from them on every read
-    figures = {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
-               "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
-               "reference": reference(env, policy, mode, episodes, cfg.seed, card), "cpu": cpu()}
-    done.write_text(json.dumps(figures, indent=1) + "\n")
-    return judged(figures)
+    return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
+            "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
+            "reference": reference(env, policy, mode, episodes, cfg.seed, card), "cpu": cpu()}
+
+
+def verdict_drop(cell: dict) -> dict:
+    """The judged cell's verdict as a drop: its percentage and 95% interval."""
+    return {"drop_pct": cell["black_box_drop_pct"], "ci95_pct": cell["black_box_ci95_pct"]}
 
 
 def judged(figures: dict) -> dict:
@@ -174,12 +206,21 @@ def table(rows: list[dict], budgets: list[str]) -> str:
         first = next(iter(cell.values()))
         ref = first["reference"]
         parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
-                 f"({c['black_box_worst']}) | "
+                 f"({c['black_box_worst']}{episodes_note(c)}) | "
                  f"{ratio(c, first)} | {c['minutes']:.1f}" if c else "– | – | –"
                  for c in (cell.get(b) for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
                      + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}) |")
     return "\n".join(lines) + "\n"
+
+
+def episodes_note(cell: dict) -> str:
+    """For a cell scored again on more episodes (its first interval was as wide as its drop), how many; and if
+    even they leave it so, that too."""
+    if "widened_from" not in cell:
+        return ""
+    still = episodes_to_pin(verdict_drop(cell), cell["episodes"]) is not None
+    return f"; {cell['episodes']} episodes" + ("; the interval still as wide as the drop" if still else "")
 
 
 def ratio(cell: dict, first: dict) -> str:

@@ -57,3 +57,15 @@ def paired_drop(clean: dict, attacked: dict) -> dict:
     mean = float(diff.mean())
     return {"drop": mean, "ci95": float(half), "drop_pct": -100 * mean / base,
             "ci95_pct": [-100 * (mean + half) / base, -100 * (mean - half) / base]}
+
+
+def episodes_to_pin(drop: dict, episodes: int) -> int | None:
+    """None when ``drop``'s 95% interval (a :func:`paired_drop` of ``episodes``) is narrower than the drop it
+    reports; else about how many episodes would make it so: the interval narrows as 1/sqrt(episodes), taken half
+    again as many for the noise of the drop itself, rounded up to tens (no drop at all: ten times as many)."""
+    low, high = drop["ci95_pct"]
+    width, size = high - low, abs(drop["drop_pct"])
+    if width < size:
+        return None
+    wanted = 1.5 * episodes * (width / size) ** 2 if size else 10 * episodes
+    return int(math.ceil(wanted / 10) * 10)

@@ -9,7 +9,7 @@ from ..envs import layout_of
 from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS, TABLE_SEARCH, WHITE_BOX
 from .compute import compute_lines
 from .paper import BLACK_BOX_ROWS, PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
-from .stats import paired_drop, worst_attack
+from .stats import episodes_to_pin, paired_drop, worst_attack
 from .tables import DAGGER_ATTACKS, PAPER_ATTACKS
 
 
@@ -279,12 +279,12 @@ def kept_line(kept: dict | None) -> str:
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
     """A warning when the worst case's interval is as wide as the drop it reports (Ant's clean episodes swing from a
-    dozen steps to the horizon): the verdict needs more episodes; else nothing."""
-    low, high = worst["ci95_pct"]
-    if high - low < abs(worst["drop_pct"]):
+    dozen steps to the horizon): the verdict needs more episodes, about as many as it names; else nothing."""
+    wanted = episodes_to_pin(worst, episodes)
+    if wanted is None:
         return []
     return [f"*The interval is as wide as the drop: {episodes} episodes do not pin this verdict down; score more "
-            "(`episodes:=`, say 50).*", ""]
+            f"(`episodes:={wanted}` would likely narrow it below the drop).*", ""]
 
 
 def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool) -> str:
