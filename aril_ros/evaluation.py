@@ -14,6 +14,7 @@ from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MAX_EPS, MODES, attack_budget, choose_attack, for_task
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
+from .timing import CHOOSERS, TimingAttack, TimingBudget
 from .sweep import run_tasks, shipped
 
 
@@ -44,6 +45,14 @@ class EvalConfig:
     n_envs: int = arg(32, "simulators run side by side (does not change the results)", low=1, high=1024)
     horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
     threads: int = arg(1, "torch threads (more only slows these small networks down)", low=1, high=256)
+    delay: int = arg(0, "timing attack: the oldest observation the policy may be shown, in steps (aril_ros.timing)",
+                     low=0, high=1000)
+    drop: float = arg(0.0, "timing attack: the share of each episode's steps on which the policy may be shown the "
+                           "observation it saw last again", low=0.0, high=0.99)
+    action_delay: int = arg(0, "timing attack: the oldest action the simulator may apply, in steps (before the "
+                               "episode's first: every actuator at rest)", low=0, high=1000)
+    timing: str = arg("fixed", f"who picks within the timing budget: {' or '.join(CHOOSERS)} (fixed: the most every "
+                               "step; random: drawn per step)")
 
 
 def evaluate(cfg: EvalConfig, progress=None) -> dict:
@@ -59,12 +68,15 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k or None, samples=cfg.samples or None,
                          adversary=choice.file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
-    engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon)
+    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop, cfg.action_delay), cfg.timing)
+    engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon,
+                           timing=timing)
     started = time.time()
     episodes = [EpisodeStats(e) for e in range(cfg.episodes)]
     for step in engine.iter_steps(cfg.episodes, cfg.seed):
         for row, e in enumerate(step.episodes):
-            episodes[e].add(step.reward[row], step.action[row], step.expert_action[row], step.delta[row],
+            # the action acting at this step's state is the applied one (late under an action delay)
+            episodes[e].add(step.reward[row], step.applied_action[row], step.expert_action[row], step.delta[row],
                             step.done[row])
             if step.done[row] and progress:
                 progress(episodes[e])
@@ -72,6 +84,8 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     summary = summarise_episodes(episodes)
     return {"env": cfg.env, "policy": cfg.policy, "expert": cfg.expert, "mode": cfg.mode, "attack": attack_name,
             "eps": engine.attack.eps, "seed": cfg.seed, **summary,
+            **({"timing": {"delay": cfg.delay, "drop": cfg.drop, "action_delay": cfg.action_delay,
+                           "chooser": cfg.timing}} if timing.budget.any else {}),
             **({"queries": attack.queries, "queries_per_step": round(attack.queries_per_step, 2)}
                if isinstance(attack, QueryAttack) else {}),
             "steps_per_s": round(summary["steps"] / (time.time() - started), 1)}

@@ -17,7 +17,8 @@ from .attacks import Attack, NoAttack
 from .envs import HORIZON, MujocoSim, PhysicsPool, layout_of, perturb_sims, physics_threads, step_sims
 from .policy import MLPPolicy
 from .registry import MODES, check_name
-from .step import StepArrays, disagreement, episode_rng, episode_seed, sensory_observation
+from .step import StepArrays, disagreement, episode_rng, episode_seed, sensory_observation, timing_rng
+from .timing import TimingAttack
 
 
 @dataclass
@@ -27,6 +28,12 @@ class StepBatch(StepArrays):
     t: int
     episodes: np.ndarray
     done: np.ndarray
+    applied_action: np.ndarray
+    """the action the simulator applied: the policy's, or under an action delay an older one of it"""
+    obs_age: np.ndarray | None = None
+    """under a timing attack, how many steps old the observation the policy saw was (else None)"""
+    action_age: np.ndarray | None = None
+    """under a timing attack, how many steps old the applied action was (else None)"""
 
 
 @dataclass
@@ -91,7 +98,9 @@ class SimBatch:
 
 class RolloutEngine:
     """Runs ``policy ∘ attack`` on ``n_envs`` simulators in lockstep, labelling with ``expert``; their physics
-    on ``physics_threads`` threads (default: one per core), which changes no result."""
+    on ``physics_threads`` threads (default: one per core), which changes no result. Under a ``timing`` attack
+    (:mod:`aril_ros.timing`) the policy may see a late or a stale observation and the simulator apply a late
+    action, each episode's timing drawn from its own stream."""
 
     def __init__(
         self,
@@ -103,6 +112,7 @@ class RolloutEngine:
         n_envs: int = 8,
         horizon: int = HORIZON,
         physics_threads: int | None = None,
+        timing: TimingAttack | None = None,
     ):
         check_name("mode", mode, MODES)
         self.layout = layout_of(env_id)
@@ -115,6 +125,7 @@ class RolloutEngine:
             raise ValueError(f"mode clean runs no attack, got attack {attack.name!r}")
         self.policy, self.expert, self.mode, self.horizon = policy, expert, mode, horizon
         self.attack = attack if attack is not None else NoAttack(self.layout, 0.0)
+        self.timing = timing if timing is not None and timing.budget.any else None
         self.sims = SimBatch(env_id, n_envs, horizon, physics_threads)
 
     def close(self) -> None:
@@ -128,18 +139,26 @@ class RolloutEngine:
 
     def _run_group(self, episode_ids: np.ndarray, seed: int) -> Iterator[StepBatch]:
         rngs = [episode_rng(seed, int(i)) for i in episode_ids]
+        timeline = self.timing and self.timing.timeline(len(episode_ids), self.layout.obs_dim, self.layout.act_dim,
+                                                        [timing_rng(seed, int(i)) for i in episode_ids])
         obs = self.sims.reset([episode_seed(seed, int(i)) for i in episode_ids])
         running = np.arange(len(episode_ids))
         for t in range(self.horizon):
             true_obs = obs[running]
             delta = self.attack.perturb(true_obs, [rngs[k] for k in running])
             seen = self.sims.seen(self.mode, true_obs, delta, running)
-            action = self.policy.act(seen)
+            obs_age = action_age = None
+            if timeline:
+                seen, obs_age = timeline.deliver(t, seen, running)
+            action = applied = self.policy.act(seen)
+            if timeline:
+                applied, action_age = timeline.apply(t, action, running)
             expert_action = self.expert.act(true_obs)
-            obs[running], reward, terminated, truncated = self.sims.step(action, running)
+            obs[running], reward, terminated, truncated = self.sims.step(applied, running)
             done = terminated | truncated
             yield StepBatch(true_obs=true_obs, obs=seen, delta=delta, action=action, expert_action=expert_action,
-                            reward=reward, t=t, episodes=episode_ids[running], done=done)
+                            reward=reward, t=t, episodes=episode_ids[running], done=done, applied_action=applied,
+                            obs_age=obs_age, action_age=action_age)
             running = running[~done]
             if running.size == 0:
                 return

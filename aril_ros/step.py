@@ -36,6 +36,40 @@ def episode_rng(seed: int, episode: int) -> np.random.Generator:
     return np.random.default_rng([seed, episode])
 
 
+def timing_rng(seed: int, episode: int) -> np.random.Generator:
+    """The timing noise of episode ``episode`` (:mod:`aril_ros.timing`): a stream of its own, so a run with timing
+    attacked keeps the value attack's perturbations of the same run without it."""
+    return np.random.default_rng([seed, episode, TIMING_STREAM])
+
+
+TIMING_STREAM = 1
+"""The third word of :func:`timing_rng`'s seed, which :func:`episode_rng` (two words) never draws."""
+
+
+def seen_step(t: int, age: np.ndarray, dropped: np.ndarray, last_seen: np.ndarray) -> np.ndarray:
+    """The step whose observation the policy sees at step ``t``, per row: the last one it saw again where the
+    observation was ``dropped``, else the one ``age`` steps old (late: the newest to have arrived may be older
+    than one seen before, as messages overtaking each other do)."""
+    return np.where(dropped, last_seen, t - age)
+
+
+def may_drop(drops: np.ndarray, t: int, share: float) -> np.ndarray:
+    """Whether one more drop at step ``t`` keeps every prefix of the episode at or below ``share`` of its steps
+    dropped, per row (``drops``: the drops before ``t``): so the share holds at whatever step the episode ends."""
+    return drops + 1 <= np.floor(share * (t + 1) + 1e-9)
+
+
+def applied_step(t: int, age: np.ndarray) -> np.ndarray:
+    """The step whose action the simulator applies at step ``t``, per row: the one ``age`` steps old; before the
+    episode's first (negative), :data:`DEFAULT_ACTION` is applied."""
+    return t - age
+
+
+DEFAULT_ACTION = 0.0
+"""What a delayed action's simulator applies before the episode's first action has reached it: every actuator at
+rest (zero torque), which MuJoCo's own default control is too."""
+
+
 def episode_seed(seed: int, episode: int) -> int:
     """The env seed episode ``episode`` of a run with ``seed`` resets with."""
     return seed + episode

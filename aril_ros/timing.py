@@ -1,0 +1,132 @@
+"""Timing attacks: observations that arrive late or not at all, and actions applied late, within a budget -- what a
+policy running on ROS 2 meets besides wrong values.
+
+At step ``t`` of an episode, by the rules of :mod:`aril_ros.step`:
+
+- **delay** (``delay:=K``): the policy sees the observation of step ``t - k``, ``k <= min(K, t)``. Ages chosen per
+  step may show an older observation after a newer one, as messages overtaking each other do.
+- **drop** (``drop:=rho``): the policy sees again the observation it saw last, on at most a share ``rho`` of the
+  episode's steps, counted over every prefix of it (:func:`~aril_ros.step.may_drop`), so the share holds wherever
+  the episode ends.
+- **action delay** (``action_delay:=J``): the simulator applies the action the policy computed at step ``t - j``,
+  ``j <= J``; where that step is before the episode's first, :data:`~aril_ros.step.DEFAULT_ACTION` (rest).
+
+A timing attack composes with the mode's value attack: what is delayed or dropped is the observation the policy
+would have seen at that step (``s + delta`` sensory, the moved state's physical). The expert labels the true state
+of step ``t``; the step's disagreement is the applied action's with it (late, the action acting at ``t`` is an older
+one), while DAgger learns the action the policy computed from what it saw.
+
+Who picks ``k``, the drops and ``j`` within the budget (:data:`CHOOSERS`): ``fixed``, the most every step (a constant
+latency; a drop whenever the share allows one), or ``random``, drawn per step from the episode's own stream
+(:func:`~aril_ros.step.timing_rng`): ``k`` and ``j`` uniform over ``0..budget``, a drop with probability ``rho``
+where the share allows it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .step import DEFAULT_ACTION, applied_step, may_drop, seen_step
+
+CHOOSERS = ("fixed", "random")
+
+
+@dataclass(frozen=True)
+class TimingBudget:
+    """How far a timing attack may go; all zero: no timing attack."""
+
+    delay: int = 0
+    """the oldest observation the policy may be shown, in steps"""
+    drop: float = 0.0
+    """the share of an episode's steps on which the policy may be shown the last observation it saw again"""
+    action_delay: int = 0
+    """the oldest action the simulator may apply, in steps"""
+
+    def __post_init__(self):
+        if self.delay < 0 or self.action_delay < 0:
+            raise ValueError(f"delay:= and action_delay:= are steps, 0 or more: got {self.delay}, {self.action_delay}")
+        if not 0.0 <= self.drop < 1.0:
+            raise ValueError(f"drop:= is a share of an episode's steps, from 0 up to (not including) 1: got {self.drop}")
+
+    @property
+    def any(self) -> bool:
+        return bool(self.delay or self.drop or self.action_delay)
+
+
+@dataclass(frozen=True)
+class TimingAttack:
+    """A timing attack: its budget and who picks within it (one of :data:`CHOOSERS`)."""
+
+    budget: TimingBudget
+    chooser: str = "fixed"
+
+    def __post_init__(self):
+        if self.chooser not in CHOOSERS:
+            raise ValueError(f"unknown timing chooser {self.chooser!r}; choose one of {', '.join(CHOOSERS)}")
+
+    def timeline(self, n: int, obs_dim: int, act_dim: int, rngs: list[np.random.Generator]) -> Timeline:
+        """The timing of ``n`` episodes run side by side, each drawing from its own stream in ``rngs``."""
+        return Timeline(self.budget, self.chooser, n, obs_dim, act_dim, rngs)
+
+
+@dataclass
+class TimingChoice:
+    """What a chooser asks for at one step, per row: budgets and rules then bound it (:class:`Timeline`)."""
+
+    obs_age: np.ndarray
+    drop: np.ndarray
+    action_age: np.ndarray
+
+
+def choose(chooser: str, budget: TimingBudget, rngs: list[np.random.Generator]) -> TimingChoice:
+    """A step's asks of ``chooser`` for the rows whose timing streams are ``rngs``."""
+    n = len(rngs)
+    if chooser == "fixed":
+        return TimingChoice(np.full(n, budget.delay), np.full(n, budget.drop > 0), np.full(n, budget.action_delay))
+    if chooser == "random":  # each row three draws a step, in this order, whatever the budget: streams stay aligned
+        draws = [(rng.integers(0, budget.delay + 1), rng.random() < budget.drop, rng.integers(0, budget.action_delay + 1))
+                 for rng in rngs]
+        obs_age, drop, action_age = (np.array(column) for column in zip(*draws)) if draws else ([], [], [])
+        return TimingChoice(np.asarray(obs_age, dtype=np.int64), np.asarray(drop, dtype=bool),
+                            np.asarray(action_age, dtype=np.int64))
+    raise AssertionError(chooser)  # TimingAttack checked it
+
+
+class Timeline:
+    """The timing of a group of episodes run side by side (row ``r`` of each call is episode row ``rows[r]``): the
+    observations each could still be shown, the last it was shown, the actions it computed, and its drops so far."""
+
+    def __init__(self, budget: TimingBudget, chooser: str, n: int, obs_dim: int, act_dim: int,
+                 rngs: list[np.random.Generator]):
+        self.budget, self.chooser, self.rngs = budget, chooser, rngs
+        self.observations = np.zeros((n, budget.delay + 1, obs_dim))  # step t's at t % (delay + 1)
+        self.actions = np.zeros((n, budget.action_delay + 1, act_dim))  # likewise
+        self.last_obs = np.zeros((n, obs_dim))
+        self.last_seen = np.zeros(n, dtype=np.int64)
+        self.drops = np.zeros(n, dtype=np.int64)
+        self.asked: TimingChoice | None = None
+
+    def deliver(self, t: int, observation: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the policy sees at step ``t`` of the ``rows`` whose observation would be ``observation``, and how
+        many steps old it is (0: on time)."""
+        self.asked = choose(self.chooser, self.budget, [self.rngs[r] for r in rows])
+        self.observations[rows, t % (self.budget.delay + 1)] = observation
+        age = np.minimum(self.asked.obs_age, min(self.budget.delay, t))
+        dropped = self.asked.drop & may_drop(self.drops[rows], t, self.budget.drop)
+        step = seen_step(t, age, dropped, self.last_seen[rows])
+        shown = np.where(dropped[:, None], self.last_obs[rows],
+                         self.observations[rows, step % (self.budget.delay + 1)])
+        self.drops[rows] += dropped
+        self.last_seen[rows], self.last_obs[rows] = step, shown
+        return shown, t - step
+
+    def apply(self, t: int, action: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The actions the simulator applies at step ``t`` of the ``rows`` whose policy computed ``action``
+        (after :meth:`deliver` of the same step), and how many steps old each is."""
+        self.actions[rows, t % (self.budget.action_delay + 1)] = action
+        age = np.minimum(self.asked.action_age, self.budget.action_delay)
+        step = applied_step(t, age)
+        applied = np.where((step >= 0)[:, None], self.actions[rows, step % (self.budget.action_delay + 1)],
+                           DEFAULT_ACTION)
+        return applied, age
