@@ -24,6 +24,8 @@ OBSERVATION = "observation"  # sensor_msgs/JointState: position = the observatio
 PERTURBATION = "attack/perturbation"  # sensor_msgs/JointState: position = delta (observation coords)
 ACTION = "action"  # sensor_msgs/JointState: effort = the policy's action
 EXPERT_ACTION = "expert/action"  # sensor_msgs/JointState: effort = the expert's action on the true state
+TIMING = "attack/timing"  # sensor_msgs/JointState, a run with a timing attack only: names TIMING_NAMES, position
+TIMING_NAMES = ("observation_age", "dropped", "action_age")  # the step's timing (aril_ros.timing)
 CLOCK = "/clock"  # rosgraph_msgs/Clock: sim time, one message per step
 CAMERA = "sim/camera/image/compressed"  # sensor_msgs/CompressedImage (JPEG), every render_every steps; opt-in
 READY = "graph/ready"  # std_msgs/String, transient local: a node's name once all its endpoints are matched
@@ -40,6 +42,8 @@ PROBE_CHANNELS = {OBSERVATION: "probe/observation", ACTION: "probe/action"}
 
 # What a step needs before it is complete, in the order the recorder writes it.
 STEP_TOPICS = (CLOCK, PHYSICS, STATE, PERTURBATION, OBSERVATION, ACTION, EXPERT_ACTION, REWARD)
+TIMED_STEP_TOPICS = (CLOCK, PHYSICS, STATE, PERTURBATION, TIMING, OBSERVATION, ACTION, EXPERT_ACTION, REWARD)
+"""A run with a timing attack's step topics: the attacker says, per step, how old the observation it delivered is."""
 REWARD_NAMES = ("reward", "terminated", "truncated")
 
 MESSAGE_TYPES = {
@@ -50,8 +54,16 @@ MESSAGE_TYPES = {
     PERTURBATION: "sensor_msgs/msg/JointState",
     ACTION: "sensor_msgs/msg/JointState",
     EXPERT_ACTION: "sensor_msgs/msg/JointState",
+    TIMING: "sensor_msgs/msg/JointState",
     CLOCK: "rosgraph_msgs/msg/Clock",
 }
+
+
+
+def step_topics(timed: bool) -> tuple[str, ...]:
+    """A run's step topics: :data:`TIMED_STEP_TOPICS` with a timing attack, else :data:`STEP_TOPICS`."""
+    return TIMED_STEP_TOPICS if timed else STEP_TOPICS
+
 
 CAMERA_TYPE = "sensor_msgs/msg/CompressedImage"  # not a step topic: a step is complete without a frame
 

@@ -30,10 +30,9 @@ class StepBatch(StepArrays):
     done: np.ndarray
     applied_action: np.ndarray
     """the action the simulator applied: the policy's, or under an action delay an older one of it"""
-    obs_age: np.ndarray | None = None
-    """under a timing attack, how many steps old the observation the policy saw was (else None)"""
-    action_age: np.ndarray | None = None
-    """under a timing attack, how many steps old the applied action was (else None)"""
+    timing: np.ndarray | None = None
+    """under a timing attack, per row :data:`aril_ros.protocol.TIMING_NAMES`: how many steps old the observation the
+    policy saw was, whether it was dropped (the last one seen, shown again), how old the applied action was"""
 
 
 @dataclass
@@ -42,6 +41,8 @@ class Trajectories(StepArrays):
 
     length: np.ndarray
     seed: int
+    timing: np.ndarray | None = None
+    """``[episode, step, 3]`` under a timing attack (:attr:`StepBatch.timing`), else None"""
 
     @property
     def returns(self) -> np.ndarray:
@@ -147,18 +148,19 @@ class RolloutEngine:
             true_obs = obs[running]
             delta = self.attack.perturb(true_obs, [rngs[k] for k in running])
             seen = self.sims.seen(self.mode, true_obs, delta, running)
-            obs_age = action_age = None
+            timing = None
             if timeline:
-                seen, obs_age = timeline.deliver(t, seen, running)
+                seen, obs_age, dropped = timeline.deliver(t, seen, running)
             action = applied = self.policy.act(seen)
             if timeline:
                 applied, action_age = timeline.apply(t, action, running)
+                timing = np.stack([obs_age, dropped, action_age], axis=1).astype(np.float64)
             expert_action = self.expert.act(true_obs)
             obs[running], reward, terminated, truncated = self.sims.step(applied, running)
             done = terminated | truncated
             yield StepBatch(true_obs=true_obs, obs=seen, delta=delta, action=action, expert_action=expert_action,
                             reward=reward, t=t, episodes=episode_ids[running], done=done, applied_action=applied,
-                            obs_age=obs_age, action_age=action_age)
+                            timing=timing)
             running = running[~done]
             if running.size == 0:
                 return
@@ -170,10 +172,13 @@ class RolloutEngine:
         act_arrays = {k: np.zeros((episodes, H, lay.act_dim)) for k in ("action", "expert_action")}
         reward = np.zeros((episodes, H))
         length = np.zeros(episodes, dtype=np.int64)
+        timing = np.zeros((episodes, H, 3)) if self.timing else None
         for step in self.iter_steps(episodes, seed):
             e, t = step.episodes, step.t
             for name, arr in {**obs_arrays, **act_arrays}.items():
                 arr[e, t] = getattr(step, name)
             reward[e, t] = step.reward
             length[e] = t + 1
-        return Trajectories(**obs_arrays, **act_arrays, reward=reward, length=length, seed=seed)
+            if timing is not None:
+                timing[e, t] = step.timing
+        return Trajectories(**obs_arrays, **act_arrays, reward=reward, length=length, seed=seed, timing=timing)

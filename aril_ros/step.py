@@ -153,9 +153,10 @@ def summarise_episodes(episodes: list[EpisodeStats]) -> dict:
             "returns": [round(float(r), 3) for r in returns]}
 
 
-def missing_topics(have) -> list[str]:
-    """The step topics a step still lacks (``have``: the topics it has); empty when it is complete."""
-    return [t for t in P.STEP_TOPICS if t not in have]
+def missing_topics(have, topics: tuple[str, ...] = P.STEP_TOPICS) -> list[str]:
+    """The step topics (``topics``: the run's, :func:`aril_ros.protocol.step_topics`) a step still lacks (``have``:
+    the topics it has); empty when it is complete."""
+    return [t for t in topics if t not in have]
 
 
 @dataclass

@@ -47,7 +47,8 @@ class TimingBudget:
         if self.delay < 0 or self.action_delay < 0:
             raise ValueError(f"delay:= and action_delay:= are steps, 0 or more: got {self.delay}, {self.action_delay}")
         if not 0.0 <= self.drop < 1.0:
-            raise ValueError(f"drop:= is a share of an episode's steps, from 0 up to (not including) 1: got {self.drop}")
+            raise ValueError(f"drop:= is a share of an episode's steps, from 0 up to (not including) 1: "
+                             f"got {self.drop}")
 
     @property
     def any(self) -> bool:
@@ -85,8 +86,8 @@ def choose(chooser: str, budget: TimingBudget, rngs: list[np.random.Generator]) 
     if chooser == "fixed":
         return TimingChoice(np.full(n, budget.delay), np.full(n, budget.drop > 0), np.full(n, budget.action_delay))
     if chooser == "random":  # each row three draws a step, in this order, whatever the budget: streams stay aligned
-        draws = [(rng.integers(0, budget.delay + 1), rng.random() < budget.drop, rng.integers(0, budget.action_delay + 1))
-                 for rng in rngs]
+        draws = [(rng.integers(0, budget.delay + 1), rng.random() < budget.drop,
+                  rng.integers(0, budget.action_delay + 1)) for rng in rngs]
         obs_age, drop, action_age = (np.array(column) for column in zip(*draws)) if draws else ([], [], [])
         return TimingChoice(np.asarray(obs_age, dtype=np.int64), np.asarray(drop, dtype=bool),
                             np.asarray(action_age, dtype=np.int64))
@@ -107,9 +108,9 @@ class Timeline:
         self.drops = np.zeros(n, dtype=np.int64)
         self.asked: TimingChoice | None = None
 
-    def deliver(self, t: int, observation: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """What the policy sees at step ``t`` of the ``rows`` whose observation would be ``observation``, and how
-        many steps old it is (0: on time)."""
+    def deliver(self, t: int, observation: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the policy sees at step ``t`` of the ``rows`` whose observation would be ``observation``, how many
+        steps old it is (0: on time), and whether it was dropped (the last one seen, shown again)."""
         self.asked = choose(self.chooser, self.budget, [self.rngs[r] for r in rows])
         self.observations[rows, t % (self.budget.delay + 1)] = observation
         age = np.minimum(self.asked.obs_age, min(self.budget.delay, t))
@@ -119,7 +120,7 @@ class Timeline:
                          self.observations[rows, step % (self.budget.delay + 1)])
         self.drops[rows] += dropped
         self.last_seen[rows], self.last_obs[rows] = step, shown
-        return shown, t - step
+        return shown, t - step, dropped
 
     def apply(self, t: int, action: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The actions the simulator applies at step ``t`` of the ``rows`` whose policy computed ``action``

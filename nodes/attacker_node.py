@@ -7,14 +7,18 @@ testbed's own file, loaded here), ``k`` (steps of fgsm_k and spsa; 0: the attack
 bundled name or a file); for aril_a ``attack_file``
 (an adversary file) and ``search`` (query-time search over this many candidates; 0: none). ``eps`` 0
 takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
-:func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations.
+:func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations. A timing attack
+(clean and sensory: :mod:`aril_ros.timing`): ``delay`` (steps), ``drop`` (a share of the steps) and ``timing``
+(``fixed`` or ``random``, drawn from :func:`aril_ros.step.timing_rng` as the engine does).
 
 The black-box attacks (spsa; aril_a when its adversary takes actions or searches) ask the policy node
 itself, whichever it is: their victim is a :class:`aril_ros_nodes.remote_policy.RemotePolicy` that
 publishes probes on ``observation`` and waits for their tagged ``action`` inside this node's step.
 
 - clean / sensory: on ``sim/state`` publish ``attack/perturbation`` and ``observation``
-  (:func:`aril_ros.step.sensory_observation`: state + delta).
+  (:func:`aril_ros.step.sensory_observation`: state + delta); under a timing attack the observation delivered is that
+  of an earlier step, or the one delivered last again (:class:`aril_ros.timing.Timeline`), and ``attack/timing``
+  says which.
 - physical: on ``sim/state`` and ``sim/physics_state`` of the same step, send the perturbed physical
   state (:func:`aril_ros.step.physical_state`) to ``sim/set_state``; the simulator then publishes the
   ``observation`` of the moved state, and this node publishes ``attack/perturbation`` once the service
@@ -35,7 +39,8 @@ from aril_ros.envs import layout_of
 from aril_ros.policy import resolve_policy
 from aril_ros.protocol import StepTag
 from aril_ros.registry import DEFAULT_ENV, QUERY_ATTACKS, SURROGATE_ATTACKS, WHITE_BOX, attack_budget, attack_for_mode
-from aril_ros.step import episode_rng, physical_state, sensory_observation
+from aril_ros.step import episode_rng, physical_state, sensory_observation, timing_rng
+from aril_ros.timing import TimingAttack, TimingBudget
 from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, ReadyAnnouncer, declared, joint_state, main_for,
                                    param_msg, publishers, subscribers)
 from aril_ros_nodes.remote_policy import RemotePolicy, RemotePolicyError
@@ -71,6 +76,13 @@ class AttackerNode(Node):
             self.probes = None
         self.seed = declared(self, "seed", 0)
         self.rng = None
+        timing = TimingAttack(TimingBudget(declared(self, "delay", 0), declared(self, "drop", 0.0)),
+                              declared(self, "timing", "fixed"))
+        self.timing = timing if timing.budget.any else None
+        if self.timing and self.mode == "physical":
+            raise ValueError("delay and drop are played on the observation this node publishes, which in mode physical "
+                             "the simulator publishes")
+        self.timeline = None
         self.perturbation_pub = self.create_publisher(JointState, P.PERTURBATION, STEP_QOS)
         state_sub = self.create_subscription(JointState, P.STATE, self.on_state, STEP_QOS)
         ready = {"a subscriber on attack/perturbation": subscribers(self.perturbation_pub, 1),
@@ -85,6 +97,9 @@ class AttackerNode(Node):
         else:
             self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
             ready["2 subscribers on observation (the policy, the recorder)"] = subscribers(self.observation_pub, 2)
+            if self.timing:
+                self.timing_pub = self.create_publisher(JointState, P.TIMING, STEP_QOS)
+                ready["a subscriber on attack/timing (the recorder)"] = subscribers(self.timing_pub, 1)
         if self.probes is not None:  # the policy answers the probes, the recorder records them
             ready.update(self.probes.checks(listeners=2))
         self.ready = ReadyAnnouncer(self, ready)
@@ -108,9 +123,17 @@ class AttackerNode(Node):
             self.try_physical(msg.header.frame_id)
             return
         true_obs, delta = self.perturbation(msg)
-        # the policy waits for the observation, the recorder alone for the perturbation
-        self.observation_pub.publish(joint_state(msg.header, self.layout.names,
-                                                 sensory_observation(true_obs, delta)))
+        observation = sensory_observation(true_obs, delta)
+        if self.timing:
+            tag = StepTag.parse(msg.header.frame_id)
+            if tag.step == 0:  # each episode's timing from its own stream, as on the engine
+                self.timeline = self.timing.timeline(1, self.layout.obs_dim, self.layout.act_dim,
+                                                     [timing_rng(self.seed, tag.episode)])
+            shown, age, dropped = self.timeline.deliver(tag.step, observation[None], np.zeros(1, dtype=np.int64))
+            observation = shown[0]
+            self.timing_pub.publish(joint_state(msg.header, P.TIMING_NAMES, [float(age[0]), float(dropped[0]), 0.0]))
+        # the policy waits for the observation, the recorder alone for the perturbation (and the timing)
+        self.observation_pub.publish(joint_state(msg.header, self.layout.names, observation))
         self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
 
     def on_physics(self, msg: JointState) -> None:

@@ -37,7 +37,7 @@ class GraphClient:
             topic: guarded_subscription(self.node, classes[msg_type], topic,
                                         lambda raw, topic=topic: self.receive(topic, recorder.on_message, topic, raw),
                                         STEP_QOS, raw=True)
-            for topic, msg_type in P.MESSAGE_TYPES.items()}
+            for topic, msg_type in P.MESSAGE_TYPES.items() if topic in recorder.topics}
         if camera:
             from sensor_msgs.msg import CompressedImage
 

@@ -3,6 +3,7 @@ attack and its settings, and each file that acts in it (policy, expert, adversar
 metadata and its digest (the nodes load it again in their own processes)."""
 from __future__ import annotations
 
+import dataclasses
 import datetime
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,9 @@ from aril_ros.provenance import git_revision, portable
 from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT_ENV, DEFAULT_POLICY, DEFENSES, MAX_EPS,
                                MODES, PER_MODE_POLICIES, WHITE_BOX, attack_budget, choose_attack)
 from aril_ros.render import frame_size
+from aril_ros.runlog.layout import TIMING_KEY
 from aril_ros.sweep import digest_of
+from aril_ros.timing import CHOOSERS, TimingAttack, TimingBudget
 from aril_ros_nodes.launcher import GraphError, domain_candidates
 
 
@@ -66,6 +69,12 @@ class GraphConfig:
                               "unless set) and publishes sim/camera/image/compressed (JPEG), the log keeps them")
     render_every: int = arg(5, "render:=true: a frame every this many steps", low=1)
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
+    delay: int = arg(0, "timing attack (clean and sensory): the oldest observation the attacker node may deliver, in "
+                        "steps (aril_ros.timing)", low=0, high=1000)
+    drop: float = arg(0.0, "timing attack (clean and sensory): the share of each episode's steps on which the attacker "
+                           "node may deliver the observation it delivered last again", low=0.0, high=0.99)
+    timing: str = arg("fixed", f"who picks within the timing budget: {' or '.join(CHOOSERS)} (fixed: the most every "
+                               "step; random: drawn per step)")
 
 
 ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
@@ -92,6 +101,8 @@ class GraphRun:
     """aril_a's adversary file, absolute"""
     files: dict[str, dict | None]
     """each acting file's path and SHA-256 (None: no file acts, e.g. an external policy, an attack of no file)"""
+    timing: TimingAttack | None = None
+    """the timing attack the attacker node plays, if any"""
 
     @property
     def action_listeners(self) -> int:
@@ -117,7 +128,12 @@ class GraphRun:
             "zero_order": self.layout.zero_order_mask.tolist(),
             "action_names": list(self.layout.action_names), "aril_ros": __version__,
             "git_revision": git_revision(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
+            **({TIMING_KEY: self.timing_record()} if self.timing else {}),
         }
+
+    def timing_record(self) -> dict:
+        """The timing attack as the log and the summary record it: its budget and its chooser."""
+        return {**dataclasses.asdict(self.timing.budget), "chooser": self.timing.chooser}
 
     def node_params(self) -> dict[str, dict]:
         """Each node's parameters; no policy node for an external policy."""
@@ -131,6 +147,7 @@ class GraphRun:
                          "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
                          "rescale": cfg.rescale, "probe_batches": cfg.probe_batches,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
+                         **({"delay": cfg.delay, "drop": float(cfg.drop), "timing": cfg.timing} if self.timing else {}),
                          **({"attack_file": str(self.adversary)} if self.adversary else {})},
             "expert": {"env": cfg.env, "expert": expert},
         }
@@ -152,6 +169,11 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                                 f"{' and '.join(f'attack:={u}' for u in users)} only, got attack:={choice.name}")
     if cfg.render:
         frame_size(cfg.render_size)
+    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop), cfg.timing)
+    if timing.budget.any and cfg.mode == "physical":
+        raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "
+                         "which in mode physical the simulator publishes: give mode:=clean or sensory (the engine, "
+                         "aril eval, plays them in every mode)")
     if choice.name in WHITE_BOX and cfg.policy == "external":
         raise GraphError(f"attack:={choice.name} is white-box and needs the victim's weights; an external "
                          "policy can be attacked with a black-box one: "
@@ -169,7 +191,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                     probes=queries_victim(choice.name, adversary_net, cfg.search), layout=layout,
                     policy_meta=policy_meta, expert_meta=expert_meta, adversary=adversary,
                     files={"policy": file_record(policy), "expert": file_record(expert),
-                           "adversary": file_record(adversary)})
+                           "adversary": file_record(adversary)},
+                    timing=timing if timing.budget.any else None)
 
 
 def _adversary(cfg: GraphConfig, attack: str, file: str) -> tuple[Path | None, AdversaryNet | None]:

@@ -70,7 +70,7 @@ class Orchestrator:
             try:
                 # first: a record path that exists or cannot be written stops the run before any node starts
                 writer = RunLogWriter(self.record, plan.metadata(), camera=self.cfg.render) if self.record else None
-                recorder = StepRecorder(writer)
+                recorder = StepRecorder(writer, P.step_topics(plan.timing is not None))
                 self.start_nodes(env)
                 ros = GraphClient(recorder, camera=self.cfg.render)
                 self.wait_connected(ros)
@@ -132,6 +132,7 @@ class Orchestrator:
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
             "attack_settings": self.plan.attack_settings(), "files": self.plan.files,
+            **({"timing": self.plan.timing_record()} if self.plan.timing else {}),
         }
 
     # ------------------------------------------------------------------------------- connecting

@@ -32,7 +32,8 @@ def clean_baseline(cfg: GraphConfig, attacked: dict) -> dict:
     if cfg.policy == "external":
         record = (str(Path(attacked["record"]).with_suffix("")) + "-clean.mcap") if attacked["record"] else "off"
         clean = dataclasses.replace(cfg, mode="clean", attack="", attack_file="", search=0, rescale=False, k=0,
-                                    samples=0, eps=0.0, record=record, domain=str(attacked["domain"]))
+                                    samples=0, eps=0.0, delay=0, drop=0.0, record=record,
+                                    domain=str(attacked["domain"]))
         return {**Orchestrator(clean, log=lambda *a, **k: None).run(), "source": "graph"}
     from aril_ros.evaluation import EvalConfig, evaluate
 
@@ -50,7 +51,9 @@ def comparison(summary: dict) -> str:
            else "a clean run of the graph with the external node")
     seeds = f"env seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}"
     return "\n".join([
-        f"[run_graph] {summary['env']} {summary['mode']}, {summary['attack']} at eps {summary['eps']:g} on "
+        f"[run_graph] {summary['env']} {summary['mode']}, {summary['attack']} at eps {summary['eps']:g}"
+        + ("".join(f", {k} {v}" for k, v in summary["timing"].items() if k != "action_delay")
+           if "timing" in summary else "") + " on "
         f"{summary['policy']}, {summary['episodes']} episode(s), {seeds}:",
         f"  clean     return {clean['mean_return']:9.1f}   expert loss {clean['mean_expert_loss']:.4f}   ({how})",
         f"  attacked  return {summary['mean_return']:9.1f}   expert loss {summary['mean_expert_loss']:.4f}   "
@@ -65,7 +68,7 @@ def main(argv) -> int:
     try:
         cfg = parse_args(GraphConfig, argv)
         summary = Orchestrator(cfg, log=print).run()
-        if cfg.mode != "clean" and cfg.baseline:
+        if (cfg.mode != "clean" or "timing" in summary) and cfg.baseline:
             clean = clean_baseline(cfg, summary)
             summary["clean"] = {key: clean[key] for key in ("mean_return", "std_return", "mean_expert_loss",
                                                              "returns", "source")}

@@ -49,7 +49,7 @@ def recorded(recorded_run):
 
 def steps_of(log):
     """The run's metadata and its steps as the recorder hands them to the writer: [(stamp, {topic: cdr bytes})]."""
-    topics = {("/" + t).replace("//", "/"): t for t in P.STEP_TOPICS}
+    topics = {("/" + t).replace("//", "/"): t for t in P.TIMED_STEP_TOPICS}  # a run without timing has no /attack/timing
     with open(log, "rb") as f:
         reader = make_reader(f)
         meta = next(m.metadata for m in reader.iter_metadata() if m.name == "aril_run")

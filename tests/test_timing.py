@@ -22,8 +22,13 @@ def steps_of(make_policy, budget, chooser, mode="clean", n_envs=3, episodes=3, s
     per_episode = {e: [] for e in range(episodes)}
     for step in engine.iter_steps(episodes, seed):
         for row, e in enumerate(step.episodes):
-            per_episode[e].append({name: (value[row] if isinstance(value, np.ndarray) else value)
-                                   for name, value in vars(step).items() if name not in ("episodes",)})
+            row_of = {name: (value[row] if isinstance(value, np.ndarray) else value)
+                      for name, value in vars(step).items() if name not in ("episodes",)}
+            if step.timing is not None:
+                row_of["obs_age"], row_of["dropped"], row_of["action_age"] = step.timing[row].astype(int)
+            else:
+                row_of["obs_age"] = None
+            per_episode[e].append(row_of)
     engine.close()
     return per_episode
 
@@ -44,7 +49,8 @@ def test_the_policy_sees_an_observation_of_its_episode_no_older_than_the_delay(m
 @pytest.mark.parametrize("chooser", ["fixed", "random"])
 def test_drops_show_the_last_observation_again_and_never_exceed_their_share_of_any_prefix(make_policy, chooser):
     for steps in steps_of(make_policy, TimingBudget(drop=0.2), chooser, mode="sensory").values():
-        dropped = [s["obs_age"] > 0 for s in steps]
+        dropped = [bool(s["dropped"]) for s in steps]
+        assert all(s["obs_age"] > 0 for s, d in zip(steps, dropped) if d)
         assert any(dropped)
         for t in range(len(steps)):
             assert sum(dropped[:t + 1]) <= 0.2 * (t + 1) + 1e-9
@@ -106,3 +112,98 @@ def test_budgets_are_checked():
         TimingBudget(drop=1.0)
     with pytest.raises(ValueError, match="unknown timing chooser 'late'; choose one of fixed, random"):
         TimingAttack(TimingBudget(delay=1), "late")
+
+
+# ------------------------------------------------------------------------------- through the graph
+@pytest.mark.slow
+@pytest.mark.parametrize("mode, env_id, timing", [
+    ("sensory", "HalfCheetah-v5", ("delay:=2", "drop:=0.2", "timing:=random")),
+    ("clean", "Swimmer-v5", ("delay:=1",)),
+    ("sensory", "Swimmer-v5", ("drop:=0.3",))])
+def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, tmp_path):
+    """The attacker node delivers what the engine shows the policy, bit for bit, and the log says per step how old
+    it was and whether it was dropped; its reader checks that the observation is the one of the step it names."""
+    from aril_ros.policy import load_policy
+    from aril_ros.runlog import read_run
+    from tests.conftest import assert_same_steps, policy_files, run_graph, summary_of
+
+    policy, expert = policy_files(tmp_path, env_id)
+    attack = "none" if mode == "clean" else "random"
+    log = tmp_path / "run.mcap"
+    summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
+                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
+                                   f"record:={log}", *timing))
+    settings = dict(arg.split(":=") for arg in timing)
+    budget = TimingBudget(int(settings.get("delay", 0)), float(settings.get("drop", 0)))
+    chooser = settings.get("timing", "fixed")
+    victim = load_policy(policy)
+    engine = RolloutEngine(env_id, victim, load_policy(expert), make_attack(attack, layout_of(env_id), 0.1), mode,
+                           n_envs=2, horizon=80, timing=TimingAttack(budget, chooser))
+    traj = engine.rollout(2, seed=4)
+    run = read_run(log)
+    assert_same_steps(run, traj)
+    for e in range(2):
+        np.testing.assert_array_equal(run.timing[run.episodes == e], traj.timing[e, : traj.length[e]])
+    assert run.timing[:, 0].max() >= 1  # something came late
+    assert summary["mean_return"] == pytest.approx(traj.returns.mean(), abs=1e-3)
+    assert summary["timing"] == {"delay": budget.delay, "drop": budget.drop, "action_delay": 0, "chooser": chooser}
+    assert run.metadata["timing"] == summary["timing"]
+
+
+@pytest.mark.slow
+def test_a_timed_logs_reader_refuses_what_the_attacker_did_not_deliver(tmp_path):
+    """Every rule of a timed step, broken in one step of a real timed log: an age that does not name the step shown,
+    one beyond the delay, a drop beyond the share, a timing message missing; and a stray one in an untimed log."""
+    from aril_ros import protocol as P
+    from aril_ros.runlog import RunLogError, read_run
+    from tests.conftest import policy_files, run_graph, summary_of
+    from tests.test_log_faults import edited, steps_of, values, write_log
+
+    policy, expert = policy_files(tmp_path, ENV)
+    log = tmp_path / "timed.mcap"
+    summary_of(run_graph("mode:=sensory", f"env:={ENV}", f"policy:={policy}", f"expert:={expert}", "attack:=random",
+                         "eps:=0.1", "episodes:=1", "horizon:=30", "delay:=1", "drop:=0.2", f"record:={log}"))
+    meta, steps = steps_of(log)
+    assert read_run(write_log(tmp_path / "same.mcap", meta, steps)).tags == read_run(log).tags  # a faithful rewrite
+
+    def with_timing(row, timing):
+        stamp, messages = steps[row]
+        return [*steps[:row], (stamp, {**messages, P.TIMING: edited(messages[P.TIMING], position=timing)}),
+                *steps[row + 1:]]
+
+    # fixed: a step late every step, and step 4 dropped (step 3 showed step 2's, shown again, 2 steps old)
+    assert values(steps[4][1][P.TIMING]).tolist() == [2.0, 1.0, 0.0]
+    assert values(steps[5][1][P.TIMING]).tolist() == [1.0, 0.0, 0.0]
+    untimed = {k: v for k, v in meta.items() if k != "timing"}
+    faults = {
+        "on time, says it": (meta, with_timing(5, [0.0, 0.0, 0.0]),
+                             r"step 0/5 observation: not step 5's sim/state \+ attack/perturbation"),
+        "beyond the delay": (meta, with_timing(5, [2.0, 0.0, 0.0]), r"step 0/5 attack/timing: observation age 2, "
+                                                                    r"beyond the delay 1"),
+        "a drop too many": (meta, with_timing(3, [1.0, 1.0, 0.0]), r"step 0/3 attack/timing: drop 1 of 4 steps, "
+                                                                  r"beyond the share 0.2"),
+        "no timing": (meta, [(s, {k: v for k, v in m.items() if k != P.TIMING}) for s, m in steps],
+                      r"step 0/0 misses attack/timing"),
+        "timing in an untimed run": (untimed, steps, r"step 0/0 has attack/timing, which a run without a timing "
+                                                     r"attack has not"),
+    }
+    for name, (run_meta, broken_steps, message) in faults.items():
+        # written as the steps are, whatever the run's record says: a writer's channels follow the record
+        writer = write_log(tmp_path / f"{name}.mcap", run_meta, [], close=False)
+        if P.TIMING not in writer._channels:
+            writer._register(P.TIMING, P.MESSAGE_TYPES[P.TIMING])
+        writer.topics = tuple(t for t in P.TIMED_STEP_TOPICS if t in broken_steps[0][1])
+        for stamp, messages in broken_steps:
+            writer.write_step(stamp, messages)
+        writer.close(interrupted=False, episodes=[])
+        with pytest.raises(RunLogError, match=message):
+            read_run(tmp_path / f"{name}.mcap")
+
+
+def test_the_graph_refuses_observation_timing_where_the_simulator_publishes_the_observation():
+    from aril_ros_nodes.graph_config import GraphConfig, plan_run
+    from aril_ros_nodes.launcher import GraphError
+
+    with pytest.raises(GraphError, match="delay:= and drop:= are played by the attacker node .* give mode:=clean or "
+                                         "sensory"):
+        plan_run(GraphConfig(mode="physical", delay=1))

@@ -34,6 +34,9 @@ from .. import protocol as P
 
 RUN = "aril_run"
 """The metadata record written first: what the run was (its values JSON-encoded)."""
+TIMING_KEY = "timing"
+"""The key of :data:`RUN` a run with a timing attack has: its budget and chooser (``delay``, ``drop``,
+``action_delay``, ``chooser``); its steps then have ``attack/timing`` too (:func:`aril_ros.protocol.step_topics`)."""
 END = "aril_run_end"
 """The metadata record written last: how the run ended."""
 
@@ -70,12 +73,13 @@ def absolute(topic: str) -> str:
     return topic if topic.startswith("/") else "/" + topic
 
 
-STEP_CHANNELS = {absolute(topic): topic for topic in P.STEP_TOPICS}
+STEP_CHANNELS = {absolute(topic): topic for topic in P.TIMED_STEP_TOPICS}
+"""Every step topic's channel (a run without a timing attack has no ``/attack/timing``)."""
 PROBE_CHANNELS = {absolute(channel): topic for topic, channel in P.PROBE_CHANNELS.items()}
 """Each probe channel and the step topic its messages were published on."""
 CAMERA_CHANNEL = absolute(P.CAMERA)
 VALUES = {P.PHYSICS: "position", P.STATE: "position", P.PERTURBATION: "position", P.OBSERVATION: "position",
-          P.ACTION: "effort", P.EXPERT_ACTION: "effort", P.REWARD: "position"}
+          P.ACTION: "effort", P.EXPERT_ACTION: "effort", P.REWARD: "position", P.TIMING: "position"}
 """The field of each step topic's JointState that holds its values."""
 
 DELTA_TOLERANCE = 1e-9

@@ -37,6 +37,9 @@ class RunLog(StepArrays):
     """the policy's answers to them"""
     probe_row: np.ndarray
     """the step (its row) each probe was asked during"""
+    timing: np.ndarray | None = None
+    """a run with a timing attack's ``attack/timing`` per step (:data:`aril_ros.protocol.TIMING_NAMES`: the age of
+    the observation the policy saw, whether it was dropped, the age of the applied action), else None"""
 
     @property
     def episodes(self) -> np.ndarray:
@@ -222,4 +225,5 @@ def _assemble(path: Path, rules: RunRules, meta: dict, end: dict, collected: Col
         probe_obs=probe_column(P.OBSERVATION, obs),
         probe_action=probe_column(P.ACTION, act),
         probe_row=np.array([row[tag] for tag, probe in asked for _ in range(probe.rows)], dtype=np.int64),
+        timing=column(P.TIMING, len(P.TIMING_NAMES)) if rules.timing else None,
     )

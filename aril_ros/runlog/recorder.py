@@ -15,7 +15,7 @@ from .writer import RunLogWriter
 
 PRODUCERS = {P.CLOCK: "simulator", P.STATE: "simulator", P.PHYSICS: "simulator", P.REWARD: "simulator",
              P.PERTURBATION: "attacker", P.OBSERVATION: "attacker, or simulator when physical", P.ACTION: "policy",
-             P.EXPERT_ACTION: "expert"}
+             P.EXPERT_ACTION: "expert", P.TIMING: "attacker"}
 """Which node publishes each step topic, for saying what a stuck step waits for."""
 
 
@@ -44,8 +44,9 @@ class StepRecorder:
     step is never reopened. Copies are compared by digest, kept for the steps of this episode and the last.
     """
 
-    def __init__(self, writer: RunLogWriter | None):
+    def __init__(self, writer: RunLogWriter | None, topics: tuple[str, ...] = P.STEP_TOPICS):
         self.writer = writer
+        self.topics = topics  # the run's step topics (aril_ros.protocol.step_topics): what completes a step
         self.pending: dict[StepTag, dict[str, bytes]] = {}
         self.clock: dict[int, bytes] = {}
         self.stamp: dict[StepTag, int] = {}
@@ -131,7 +132,7 @@ class StepRecorder:
         return sum(len(probe) < len(P.PROBE_CHANNELS) for probe in self.probes.get(tag, {}).values())
 
     def complete(self, tag: StepTag) -> bool:
-        return not missing_topics(self.arrived(tag)) and not self.half_heard(tag)
+        return not missing_topics(self.arrived(tag), self.topics) and not self.half_heard(tag)
 
     def flush(self) -> None:
         # the step to write is the waiting one, not the first heard: a stray action's tag (a policy that does not
@@ -168,7 +169,7 @@ class StepRecorder:
         tag = self.waiting_for()
         if tag not in self.pending:
             return f"no {P.STATE} from the simulator"
-        missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(tag))]
+        missing = [f"{t} ({PRODUCERS[t]})" for t in missing_topics(self.arrived(tag), self.topics)]
         half_heard = self.half_heard(tag)
         if half_heard:
             missing.append(f"{half_heard} probes' observation or answer (attacker, policy)")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .. import protocol as P
 from ..step import EpisodeStats
-from .layout import END, QOS_YAML, RUN, SCHEMAS, RunLogError, absolute, encoded
+from .layout import END, QOS_YAML, RUN, SCHEMAS, TIMING_KEY, RunLogError, absolute, encoded
 from .stream import ChunkStreamWriter
 
 
@@ -50,8 +50,11 @@ class RunLogWriter:
             self._schema_ids = {name: self._writer.register_schema(name, "ros2msg", text.encode())
                                 for name, text in SCHEMAS.items()}
             self._channels = {}
+            # a run with a timing attack (its record says which) has the attacker's timing channel too
+            self.topics = P.step_topics(TIMING_KEY in run_metadata)
             for topic, msg_type in {**P.MESSAGE_TYPES, **({P.CAMERA: P.CAMERA_TYPE} if camera else {})}.items():
-                self._register(topic, msg_type)
+                if topic in self.topics or topic not in P.TIMED_STEP_TOPICS:
+                    self._register(topic, msg_type)
             self._sequence = 0
             self._writer.add_metadata(RUN, encoded(run_metadata))
             self._file.flush()  # a full disk shows now, before the run starts
@@ -68,7 +71,7 @@ class RunLogWriter:
         """Write one complete step (``{topic: cdr bytes}`` for every step topic), then its ``probes`` (each
         ``{observation: cdr bytes, action: cdr bytes}``, in the order asked), and flush it to disk."""
         with self._writing():
-            for topic in P.STEP_TOPICS:
+            for topic in self.topics:
                 self._add(topic, stamp_ns, messages[topic])
             for probe in probes:
                 for topic, channel in P.PROBE_CHANNELS.items():
