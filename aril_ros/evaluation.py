@@ -14,7 +14,7 @@ from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MAX_EPS, MODES, attack_budget, choose_attack, for_task
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
-from .timing import CHOOSERS, TimingAttack, TimingBudget
+from .timing import TimingAttack, TimingBudget, timing_arg
 from .sweep import run_tasks, shipped
 
 
@@ -45,14 +45,10 @@ class EvalConfig:
     n_envs: int = arg(32, "simulators run side by side (does not change the results)", low=1, high=1024)
     horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
     threads: int = arg(1, "torch threads (more only slows these small networks down)", low=1, high=256)
-    delay: int = arg(0, "timing attack: the oldest observation the policy may be shown, in steps (aril_ros.timing)",
-                     low=0, high=1000)
-    drop: float = arg(0.0, "timing attack: the share of each episode's steps on which the policy may be shown the "
-                           "observation it saw last again", low=0.0, high=0.99)
-    action_delay: int = arg(0, "timing attack: the oldest action the simulator may apply, in steps (before the "
-                               "episode's first: every actuator at rest)", low=0, high=1000)
-    timing: str = arg("fixed", f"who picks within the timing budget: {' or '.join(CHOOSERS)} (fixed: the most every "
-                               "step; random: drawn per step)")
+    delay: int = timing_arg("delay")
+    drop: float = timing_arg("drop")
+    action_delay: int = timing_arg("action_delay")
+    timing: str = timing_arg("timing")
 
 
 def evaluate(cfg: EvalConfig, progress=None) -> dict:

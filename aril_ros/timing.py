@@ -27,9 +27,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .args import arg
 from .step import DEFAULT_ACTION, applied_step, may_drop, seen_step
 
 CHOOSERS = ("fixed", "random")
+
+
+def timing_arg(name: str, where: str = ""):
+    """The argument ``name`` (``delay``, ``drop``, ``action_delay``, ``timing``) of a command that plays timing
+    attacks, ``where`` saying where it plays them if not everywhere: one help text for every command."""
+    scope = f"timing attack{f' ({where})' if where else ''}: "
+    if name == "delay":
+        return arg(0, scope + "the oldest observation the policy may be shown, in steps (aril_ros.timing)",
+                   low=0, high=1000)
+    if name == "drop":
+        return arg(0.0, scope + "the share of each episode's steps on which the policy may be shown the observation it "
+                                "was shown last, again", low=0.0, high=0.99)
+    if name == "action_delay":
+        return arg(0, scope + "the oldest action the simulator may apply, in steps (before the episode's first: every "
+                              "actuator at rest)", low=0, high=1000)
+    return arg("fixed", f"who picks within the timing budget: {' or '.join(CHOOSERS)} (fixed: the most every step; "
+                        "random: drawn per step)")
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT
 from aril_ros.render import frame_size
 from aril_ros.runlog.layout import TIMING_KEY
 from aril_ros.sweep import digest_of
-from aril_ros.timing import CHOOSERS, TimingAttack, TimingBudget
+from aril_ros.timing import TimingAttack, TimingBudget, timing_arg
 from aril_ros_nodes.launcher import GraphError, domain_candidates
 
 
@@ -69,12 +69,9 @@ class GraphConfig:
                               "unless set) and publishes sim/camera/image/compressed (JPEG), the log keeps them")
     render_every: int = arg(5, "render:=true: a frame every this many steps", low=1)
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
-    delay: int = arg(0, "timing attack (clean and sensory): the oldest observation the attacker node may deliver, in "
-                        "steps (aril_ros.timing)", low=0, high=1000)
-    drop: float = arg(0.0, "timing attack (clean and sensory): the share of each episode's steps on which the attacker "
-                           "node may deliver the observation it delivered last again", low=0.0, high=0.99)
-    timing: str = arg("fixed", f"who picks within the timing budget: {' or '.join(CHOOSERS)} (fixed: the most every "
-                               "step; random: drawn per step)")
+    delay: int = timing_arg("delay", "clean and sensory, played by the attacker node")
+    drop: float = timing_arg("drop", "clean and sensory, played by the attacker node")
+    timing: str = timing_arg("timing")
 
 
 ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
