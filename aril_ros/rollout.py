@@ -43,6 +43,8 @@ class Trajectories(StepArrays):
     seed: int
     timing: np.ndarray | None = None
     """``[episode, step, 3]`` under a timing attack (:attr:`StepBatch.timing`), else None"""
+    applied_action: np.ndarray | None = None
+    """under a timing attack, the actions the simulator applied (late under an action delay), else None"""
 
     @property
     def returns(self) -> np.ndarray:
@@ -54,8 +56,9 @@ class Trajectories(StepArrays):
 
     @property
     def mean_expert_loss(self) -> float:
-        """``||a - a_e||^2`` averaged over every step of every episode."""
-        return float(disagreement(self.action, self.expert_action).sum() / self.length.sum())
+        """``||a - a_e||^2`` averaged over every step of every episode, ``a`` the action applied."""
+        applied = self.action if self.applied_action is None else self.applied_action
+        return float(disagreement(applied, self.expert_action).sum() / self.length.sum())
 
 
 class SimBatch:
@@ -173,6 +176,7 @@ class RolloutEngine:
         reward = np.zeros((episodes, H))
         length = np.zeros(episodes, dtype=np.int64)
         timing = np.zeros((episodes, H, 3)) if self.timing else None
+        applied = np.zeros((episodes, H, lay.act_dim)) if self.timing else None
         for step in self.iter_steps(episodes, seed):
             e, t = step.episodes, step.t
             for name, arr in {**obs_arrays, **act_arrays}.items():
@@ -180,5 +184,6 @@ class RolloutEngine:
             reward[e, t] = step.reward
             length[e] = t + 1
             if timing is not None:
-                timing[e, t] = step.timing
-        return Trajectories(**obs_arrays, **act_arrays, reward=reward, length=length, seed=seed, timing=timing)
+                timing[e, t], applied[e, t] = step.timing, step.applied_action
+        return Trajectories(**obs_arrays, **act_arrays, reward=reward, length=length, seed=seed, timing=timing,
+                            applied_action=applied)

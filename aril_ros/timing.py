@@ -120,7 +120,7 @@ class Timeline:
                  rngs: list[np.random.Generator]):
         self.budget, self.chooser, self.rngs = budget, chooser, rngs
         self.observations = np.zeros((n, budget.delay + 1, obs_dim))  # step t's at t % (delay + 1)
-        self.actions = np.zeros((n, budget.action_delay + 1, act_dim))  # likewise
+        self.actions = ActionQueue(n, act_dim, budget.action_delay)
         self.last_obs = np.zeros((n, obs_dim))
         self.last_seen = np.zeros(n, dtype=np.int64)
         self.drops = np.zeros(n, dtype=np.int64)
@@ -140,12 +140,31 @@ class Timeline:
         self.last_seen[rows], self.last_obs[rows] = step, shown
         return shown, t - step, dropped
 
+    def action_age(self) -> np.ndarray:
+        """How old the action applied at the step :meth:`deliver` last timed is to be, per row: the asked age within
+        the action delay (an age reaching before the episode's first step applies rest, :class:`ActionQueue`)."""
+        return np.minimum(self.asked.action_age, self.budget.action_delay)
+
     def apply(self, t: int, action: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The actions the simulator applies at step ``t`` of the ``rows`` whose policy computed ``action``
         (after :meth:`deliver` of the same step), and how many steps old each is."""
-        self.actions[rows, t % (self.budget.action_delay + 1)] = action
-        age = np.minimum(self.asked.action_age, self.budget.action_delay)
+        age = self.action_age()
+        self.actions.push(t, action, rows)
+        return self.actions.applied(t, age, rows), age
+
+
+class ActionQueue:
+    """The actions a simulator may still apply late, per row (step t's at ``t % (action_delay + 1)``): the engine's
+    (:class:`Timeline`) and the simulator node's, which applies what the attacker node's ``attack/timing`` says."""
+
+    def __init__(self, n: int, act_dim: int, action_delay: int):
+        self.size = action_delay + 1
+        self.actions = np.zeros((n, self.size, act_dim))
+
+    def push(self, t: int, action: np.ndarray, rows: np.ndarray) -> None:
+        self.actions[rows, t % self.size] = action
+
+    def applied(self, t: int, age: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """The actions applied at step ``t`` of ``rows``, each ``age`` steps old: rest before the episode's first."""
         step = applied_step(t, age)
-        applied = np.where((step >= 0)[:, None], self.actions[rows, step % (self.budget.action_delay + 1)],
-                           DEFAULT_ACTION)
-        return applied, age
+        return np.where((step >= 0)[:, None], self.actions[rows, step % self.size], DEFAULT_ACTION)

@@ -8,8 +8,9 @@ bundled name or a file); for aril_a ``attack_file``
 (an adversary file) and ``search`` (query-time search over this many candidates; 0: none). ``eps`` 0
 takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`` draws its noise from
 :func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations. A timing attack
-(clean and sensory: :mod:`aril_ros.timing`): ``delay`` (steps), ``drop`` (a share of the steps) and ``timing``
-(``fixed`` or ``random``, drawn from :func:`aril_ros.step.timing_rng` as the engine does).
+(:mod:`aril_ros.timing`): ``delay`` (steps) and ``drop`` (a share of the steps), clean and sensory, played here;
+``action_delay`` (steps), in every mode, chosen here and applied by the simulator as ``attack/timing`` says; and
+``timing`` (``fixed`` or ``random``, drawn from :func:`aril_ros.step.timing_rng` as the engine does).
 
 The black-box attacks (spsa; aril_a when its adversary takes actions or searches) ask the policy node
 itself, whichever it is: their victim is a :class:`aril_ros_nodes.remote_policy.RemotePolicy` that
@@ -76,10 +77,10 @@ class AttackerNode(Node):
             self.probes = None
         self.seed = declared(self, "seed", 0)
         self.rng = None
-        timing = TimingAttack(TimingBudget(declared(self, "delay", 0), declared(self, "drop", 0.0)),
-                              declared(self, "timing", "fixed"))
+        timing = TimingAttack(TimingBudget(declared(self, "delay", 0), declared(self, "drop", 0.0),
+                                           declared(self, "action_delay", 0)), declared(self, "timing", "fixed"))
         self.timing = timing if timing.budget.any else None
-        if self.timing and self.mode == "physical":
+        if self.mode == "physical" and (timing.budget.delay or timing.budget.drop):
             raise ValueError("delay and drop are played on the observation this node publishes, which in mode physical "
                              "the simulator publishes")
         self.timeline = None
@@ -97,9 +98,10 @@ class AttackerNode(Node):
         else:
             self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
             ready["2 subscribers on observation (the policy, the recorder)"] = subscribers(self.observation_pub, 2)
-            if self.timing:
-                self.timing_pub = self.create_publisher(JointState, P.TIMING, STEP_QOS)
-                ready["a subscriber on attack/timing (the recorder)"] = subscribers(self.timing_pub, 1)
+
+        if self.timing:  # the recorder records it; under an action delay the simulator applies what it says
+            self.timing_pub = self.create_publisher(JointState, P.TIMING, STEP_QOS)
+            ready["subscribers on attack/timing"] = subscribers(self.timing_pub, 1 + bool(timing.budget.action_delay))
         if self.probes is not None:  # the policy answers the probes, the recorder records them
             ready.update(self.probes.checks(listeners=2))
         self.ready = ReadyAnnouncer(self, ready)
@@ -123,18 +125,25 @@ class AttackerNode(Node):
             self.try_physical(msg.header.frame_id)
             return
         true_obs, delta = self.perturbation(msg)
-        observation = sensory_observation(true_obs, delta)
-        if self.timing:
-            tag = StepTag.parse(msg.header.frame_id)
-            if tag.step == 0:  # each episode's timing from its own stream, as on the engine
-                self.timeline = self.timing.timeline(1, self.layout.obs_dim, self.layout.act_dim,
-                                                     [timing_rng(self.seed, tag.episode)])
-            shown, age, dropped = self.timeline.deliver(tag.step, observation[None], np.zeros(1, dtype=np.int64))
-            observation = shown[0]
-            self.timing_pub.publish(joint_state(msg.header, P.TIMING_NAMES, [float(age[0]), float(dropped[0]), 0.0]))
-        # the policy waits for the observation, the recorder alone for the perturbation (and the timing)
+        observation = self.timed(msg.header, sensory_observation(true_obs, delta))
+        # the policy waits for the observation, the recorder alone for the perturbation
         self.observation_pub.publish(joint_state(msg.header, self.layout.names, observation))
         self.perturbation_pub.publish(joint_state(msg.header, self.layout.names, delta))
+
+    def timed(self, header, observation: np.ndarray) -> np.ndarray:
+        """Under a timing attack, the observation delivered at this step (an earlier one, or the last delivered
+        again), its ``attack/timing`` published first; else ``observation``. Physical: on time (no delay, no drop
+        here), the timing saying the applied action's age alone."""
+        if not self.timing:
+            return observation
+        tag = StepTag.parse(header.frame_id)
+        if tag.step == 0:  # each episode's timing from its own stream, as on the engine
+            self.timeline = self.timing.timeline(1, self.layout.obs_dim, self.layout.act_dim,
+                                                 [timing_rng(self.seed, tag.episode)])
+        shown, age, dropped = self.timeline.deliver(tag.step, observation[None], np.zeros(1, dtype=np.int64))
+        self.timing_pub.publish(joint_state(header, P.TIMING_NAMES,
+                                            [float(age[0]), float(dropped[0]), float(self.timeline.action_age()[0])]))
+        return shown[0]
 
     def on_physics(self, msg: JointState) -> None:
         self.physics[msg.header.frame_id] = msg
@@ -144,7 +153,8 @@ class AttackerNode(Node):
         if tag not in self.states or tag not in self.physics:
             return  # the other half of this step has not arrived yet
         state, physics = self.states.pop(tag), self.physics.pop(tag)
-        _, delta = self.perturbation(state)
+        true_obs, delta = self.perturbation(state)
+        self.timed(state.header, true_obs)  # on time: its timing says how old the action applied will be
         request = SetParametersAtomically.Request()
         request.parameters = [param_msg("state", physical_state(self.layout, physics.position, delta)),
                               param_msg("tag", tag)]

@@ -71,6 +71,8 @@ class GraphConfig:
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
     delay: int = timing_arg("delay", "clean and sensory, played by the attacker node")
     drop: float = timing_arg("drop", "clean and sensory, played by the attacker node")
+    action_delay: int = timing_arg("action_delay", "every mode, played by the simulator node as the attacker node's "
+                                                   "attack/timing says")
     timing: str = timing_arg("timing")
 
 
@@ -139,12 +141,14 @@ class GraphRun:
         policy, expert = (node_path(name) for name in (cfg.policy, cfg.expert))
         params = {
             "simulator": {**common, "horizon": cfg.horizon,
-                          **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {})},
+                          **({"render_every": cfg.render_every, "render_size": cfg.render_size} if cfg.render else {}),
+                          **({"action_delay": cfg.action_delay} if cfg.action_delay else {})},
             "attacker": {**common, "attack": self.attack, "eps": float(self.eps), "seed": cfg.seed,
                          "k": cfg.k, "samples": cfg.samples, "search": cfg.search, "expert": expert,
                          "rescale": cfg.rescale, "probe_batches": cfg.probe_batches,
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
-                         **({"delay": cfg.delay, "drop": float(cfg.drop), "timing": cfg.timing} if self.timing else {}),
+                         **({"delay": cfg.delay, "drop": float(cfg.drop), "action_delay": cfg.action_delay,
+                             "timing": cfg.timing} if self.timing else {}),
                          **({"attack_file": str(self.adversary)} if self.adversary else {})},
             "expert": {"env": cfg.env, "expert": expert},
         }
@@ -166,8 +170,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                                 f"{' and '.join(f'attack:={u}' for u in users)} only, got attack:={choice.name}")
     if cfg.render:
         frame_size(cfg.render_size)
-    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop), cfg.timing)
-    if timing.budget.any and cfg.mode == "physical":
+    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop, cfg.action_delay), cfg.timing)
+    if (cfg.delay or cfg.drop) and cfg.mode == "physical":
         raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "
                          "which in mode physical the simulator publishes: give mode:=clean or sensory (the engine, "
                          "aril eval, plays them in every mode)")

@@ -32,7 +32,7 @@ def clean_baseline(cfg: GraphConfig, attacked: dict) -> dict:
     if cfg.policy == "external":
         record = (str(Path(attacked["record"]).with_suffix("")) + "-clean.mcap") if attacked["record"] else "off"
         clean = dataclasses.replace(cfg, mode="clean", attack="", attack_file="", search=0, rescale=False, k=0,
-                                    samples=0, eps=0.0, delay=0, drop=0.0, record=record,
+                                    samples=0, eps=0.0, delay=0, drop=0.0, action_delay=0, record=record,
                                     domain=str(attacked["domain"]))
         return {**Orchestrator(clean, log=lambda *a, **k: None).run(), "source": "graph"}
     from aril_ros.evaluation import EvalConfig, evaluate
@@ -52,7 +52,7 @@ def comparison(summary: dict) -> str:
     seeds = f"env seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}"
     return "\n".join([
         f"[run_graph] {summary['env']} {summary['mode']}, {summary['attack']} at eps {summary['eps']:g}"
-        + ("".join(f", {k} {v}" for k, v in summary["timing"].items() if k != "action_delay")
+        + ("".join(f", {k.replace('_', ' ')} {v}" for k, v in summary["timing"].items() if v)
            if "timing" in summary else "") + " on "
         f"{summary['policy']}, {summary['episodes']} episode(s), {seeds}:",
         f"  clean     return {clean['mean_return']:9.1f}   expert loss {clean['mean_expert_loss']:.4f}   ({how})",

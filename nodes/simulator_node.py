@@ -4,7 +4,9 @@ Parameters: ``env`` (gymnasium MuJoCo id), ``horizon`` (steps per episode), ``mo
 sensory | physical: which peers it waits for before announcing itself ready), ``render_every``
 (0: off; n: a JPEG frame of every n-th step of an episode on ``sim/camera/image/compressed``, rendered offscreen,
 which needs ``MUJOCO_GL=egl`` or ``osmesa`` in the node's environment) and ``render_size``
-(``"<width>x<height>"``).
+(``"<width>x<height>"``), ``action_delay`` (0: off; J: a timing attack's action delay, :mod:`aril_ros.timing`: the
+action applied at step t is the policy's of step t - j, j <= J as the attacker's ``attack/timing`` of step t says,
+rest before the episode's first; the step waits for both).
 
 After ``sim/reset`` (seed, episode) it publishes step 0: ``sim/state``, ``sim/physics_state`` and
 ``/clock``. It steps only when the ``action`` tagged with the current step arrives (an action for
@@ -33,6 +35,7 @@ from aril_ros import protocol as P
 from aril_ros.envs import HORIZON, MujocoSim
 from aril_ros.protocol import StepTag, stamp_ns
 from aril_ros.registry import DEFAULT_ENV
+from aril_ros.timing import ActionQueue
 from aril_ros_nodes.common import (STEP_QOS, FatalNodeError, PublisherGuard, ReadyAnnouncer, declared,
                                    endpoint_text, guarded_subscription, joint_state, main_for, publishers,
                                    request_params, step_header, subscribers)
@@ -53,6 +56,12 @@ class SimulatorNode(Node):
         self.reward_pub = self.create_publisher(JointState, P.REWARD, STEP_QOS)
         self.observation_pub = self.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
         self.action_guard = guarded_subscription(self, JointState, P.ACTION, self.on_action, STEP_QOS)
+        self.action_delay = declared(self, "action_delay", 0)
+        self.order_guards = [(self.action_guard, P.ACTION, "the policy")]
+        if self.action_delay:  # the attacker says how old the action applied is: it takes orders from it too
+            self.timing_guard = guarded_subscription(self, JointState, P.TIMING, self.on_timing, STEP_QOS)
+            self.order_guards.append((self.timing_guard, P.TIMING, "the attacker"))
+        self.waiting: dict[str, object] = {}  # the current step's action and, under an action delay, its timing
         self.create_service(SetParametersAtomically, P.RESET_SERVICE, self.on_reset)
         self.create_service(SetParametersAtomically, P.SET_STATE_SERVICE, self.on_set_state)
         self.service_guards = {name: PublisherGuard(self, name, service=True)
@@ -67,6 +76,8 @@ class SimulatorNode(Node):
             "a subscriber on /clock": subscribers(self.clock_pub, 1),
             "2 subscribers on observation": subscribers(self.observation_pub, 2 if physical else 0),
             "a publisher on action (the policy)": publishers(self.action_guard.subscription),
+            **({"a publisher on attack/timing (the attacker)": publishers(self.timing_guard.subscription)}
+               if self.action_delay else {}),
             **({"a subscriber on the camera": subscribers(self.camera_pub, 1)} if self.camera else {}),
         })
         self.get_logger().info(f"{self.sim.layout.env_id}: obs {len(self.obs_names)}, act {self.act_dim}")
@@ -102,10 +113,11 @@ class SimulatorNode(Node):
         the ones this node takes orders from for the rest of the run."""
         if self.action_guard.admitted is not None:
             return
-        policies = self.action_guard.admit()
-        if len(policies) > 1:
-            raise FatalNodeError(f"{len(policies)} publishers on action, one (the policy) expected: "
-                                 + ", ".join(endpoint_text(info) for info in policies))
+        for guard, topic, who in self.order_guards:
+            publishers_now = guard.admit()
+            if len(publishers_now) > 1:
+                raise FatalNodeError(f"{len(publishers_now)} publishers on {topic}, one ({who}) expected: "
+                                     + ", ".join(endpoint_text(info) for info in publishers_now))
         for guard in self.service_guards.values():
             guard.admit()
 
@@ -121,6 +133,8 @@ class SimulatorNode(Node):
             return response
         self.sim.reset(seed)
         self.tag = StepTag(episode, 0)
+        self.waiting = {}
+        self.queue = ActionQueue(1, self.act_dim, self.action_delay)  # this episode's actions, for a late one
         self.publish_step()
         response.result.successful = True
         return response
@@ -158,6 +172,36 @@ class SimulatorNode(Node):
                                  f"{self.act_dim}")
         if not np.all(np.isfinite(action)):
             raise FatalNodeError(f"action for step {tag} is not finite: {action.tolist()}")
+        self.waiting[P.ACTION] = action
+        self.try_step()
+
+    def on_timing(self, msg) -> None:
+        self.timing_guard.check()
+        try:
+            tag = StepTag.parse(msg.header.frame_id)
+        except ValueError as err:
+            raise FatalNodeError(f"attack/timing with a bad header from {self.timing_guard.describe()}: {err}") from None
+        if tag != self.tag:
+            self.get_logger().warning(f"ignoring attack/timing for step {tag}; waiting for step {self.tag}")
+            return
+        age = np.asarray(msg.position, dtype=np.float64)
+        if age.shape != (len(P.TIMING_NAMES),) or not 0 <= age[2] <= self.action_delay or age[2] != int(age[2]):
+            raise FatalNodeError(f"attack/timing for step {tag} is not {', '.join(P.TIMING_NAMES)} with an action age "
+                                 f"in 0..{self.action_delay}: {age.tolist()}")
+        self.waiting[P.TIMING] = int(age[2])
+        self.try_step()
+
+    def try_step(self) -> None:
+        """Step once the current step's action is in, and under an action delay its timing too: the action applied
+        is then the one the timing names (:class:`aril_ros.timing.ActionQueue`)."""
+        if P.ACTION not in self.waiting or (self.action_delay and P.TIMING not in self.waiting):
+            return
+        tag, action = self.tag, self.waiting[P.ACTION]
+        if self.action_delay:
+            rows = np.zeros(1, dtype=np.int64)
+            self.queue.push(tag.step, action[None], rows)
+            action = self.queue.applied(tag.step, np.array([self.waiting[P.TIMING]]), rows)[0]
+        self.waiting = {}
         _, reward, terminated, truncated = self.sim.step(action)
         self.reward_pub.publish(joint_state(self.header(), P.REWARD_NAMES, [reward, terminated, truncated]))
         self.global_step += 1

@@ -119,10 +119,13 @@ def test_budgets_are_checked():
 @pytest.mark.parametrize("mode, env_id, timing", [
     ("sensory", "HalfCheetah-v5", ("delay:=2", "drop:=0.2", "timing:=random")),
     ("clean", "Swimmer-v5", ("delay:=1",)),
-    ("sensory", "Swimmer-v5", ("drop:=0.3",))])
+    ("sensory", "Swimmer-v5", ("drop:=0.3",)),
+    ("physical", "HalfCheetah-v5", ("action_delay:=2", "timing:=random")),
+    ("clean", "Swimmer-v5", ("delay:=1", "action_delay:=1"))])
 def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, tmp_path):
-    """The attacker node delivers what the engine shows the policy, bit for bit, and the log says per step how old
-    it was and whether it was dropped; its reader checks that the observation is the one of the step it names."""
+    """The attacker node delivers what the engine shows the policy, and the simulator node applies the action the
+    engine applies, bit for bit; the log says per step how old the observation was, whether it was dropped and how
+    old the applied action was; its reader checks that the observation is the one of the step it names."""
     from aril_ros.policy import load_policy
     from aril_ros.runlog import read_run
     from tests.conftest import assert_same_steps, policy_files, run_graph, summary_of
@@ -134,7 +137,8 @@ def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, 
                                    f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
                                    f"record:={log}", *timing))
     settings = dict(arg.split(":=") for arg in timing)
-    budget = TimingBudget(int(settings.get("delay", 0)), float(settings.get("drop", 0)))
+    budget = TimingBudget(int(settings.get("delay", 0)), float(settings.get("drop", 0)),
+                          int(settings.get("action_delay", 0)))
     chooser = settings.get("timing", "fixed")
     victim = load_policy(policy)
     engine = RolloutEngine(env_id, victim, load_policy(expert), make_attack(attack, layout_of(env_id), 0.1), mode,
@@ -144,9 +148,11 @@ def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, 
     assert_same_steps(run, traj)
     for e in range(2):
         np.testing.assert_array_equal(run.timing[run.episodes == e], traj.timing[e, : traj.length[e]])
-    assert run.timing[:, 0].max() >= 1  # something came late
+    assert run.timing[:, [0, 2]].max() >= 1  # something came late
     assert summary["mean_return"] == pytest.approx(traj.returns.mean(), abs=1e-3)
-    assert summary["timing"] == {"delay": budget.delay, "drop": budget.drop, "action_delay": 0, "chooser": chooser}
+    assert summary["mean_expert_loss"] == pytest.approx(traj.mean_expert_loss, abs=1e-6)  # the applied action's
+    assert summary["timing"] == {"delay": budget.delay, "drop": budget.drop, "action_delay": budget.action_delay,
+                                 "chooser": chooser}
     assert run.metadata["timing"] == summary["timing"]
 
 
@@ -182,6 +188,8 @@ def test_a_timed_logs_reader_refuses_what_the_attacker_did_not_deliver(tmp_path)
                                                                     r"beyond the delay 1"),
         "a drop too many": (meta, with_timing(3, [1.0, 1.0, 0.0]), r"step 0/3 attack/timing: drop 1 of 4 steps, "
                                                                   r"beyond the share 0.2"),
+        "an action too old": (meta, with_timing(5, [1.0, 0.0, 1.0]), r"step 0/5 attack/timing: action age 1, beyond "
+                                                                     r"the action delay 0"),
         "no timing": (meta, [(s, {k: v for k, v in m.items() if k != P.TIMING}) for s, m in steps],
                       r"step 0/0 misses attack/timing"),
         "timing in an untimed run": (untimed, steps, r"step 0/0 has attack/timing, which a run without a timing "

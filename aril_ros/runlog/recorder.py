@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import hashlib
 
+import numpy as np
+
 from .. import protocol as P
 from ..protocol import ProbeTag, StepTag
-from ..step import EpisodeStats, missing_topics
+from ..step import DEFAULT_ACTION, EpisodeStats, applied_step, missing_topics
 from . import cdr
 from .layout import VALUES
 from .writer import RunLogWriter
@@ -23,15 +25,21 @@ class StepFault(ValueError):
     """A step message the recorder refuses: a second, different copy, or a malformed frame_id."""
 
 
-def add_step(episode: EpisodeStats, messages: dict[str, bytes]) -> None:
+def add_step(episode: EpisodeStats, messages: dict[str, bytes], actions: dict[int, np.ndarray]) -> None:
     """A step's figures (``messages``: its CDR bytes by topic) into its episode's; the episode ends with the step
-    whose reward says terminated or truncated."""
+    whose reward says terminated or truncated. ``actions``: the episode's actions so far by step, this one's added:
+    under an action delay (the step's ``attack/timing``) the action applied, whose disagreement counts, is an
+    earlier one (:func:`aril_ros.step.applied_step`)."""
     def values(topic):
         return cdr.joint_values(messages[topic], VALUES[topic])
 
+    t, action = episode.steps, values(P.ACTION)
+    actions[t] = action
+    if P.TIMING in messages:
+        earlier = int(applied_step(t, int(values(P.TIMING)[2])))
+        action = actions[earlier] if earlier >= 0 else np.full_like(action, DEFAULT_ACTION)
     reward, terminated, truncated = values(P.REWARD)
-    episode.add(reward, values(P.ACTION), values(P.EXPERT_ACTION), values(P.PERTURBATION),
-                done=bool(terminated or truncated))
+    episode.add(reward, action, values(P.EXPERT_ACTION), values(P.PERTURBATION), done=bool(terminated or truncated))
 
 
 class StepRecorder:
@@ -65,6 +73,7 @@ class StepRecorder:
     def start_episode(self, episode: int) -> None:
         self.episode, self.episode_done = episode, False
         self.current = EpisodeStats(episode)
+        self.actions: dict[int, np.ndarray] = {}  # the episode's, by step: an action delay applies an earlier one
         self.written = {tag: digests for tag, digests in self.written.items() if tag.episode >= episode - 1}
 
     def close(self, interrupted: bool, reason: str = "") -> None:
@@ -155,7 +164,7 @@ class StepRecorder:
 
     def count_step(self, messages: dict[str, bytes]) -> None:
         """A written step's figures into the episode's; the episode ends with its last step."""
-        add_step(self.current, messages)
+        add_step(self.current, messages, self.actions)
         self.steps_written += 1
         if self.current.done:
             self.episode_stats.append(self.current)

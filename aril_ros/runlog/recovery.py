@@ -210,8 +210,10 @@ def _missing_steps(kept: list[StepTag]) -> list[StepTag]:
 def _completed_episodes(collected: Collected, kept: list[StepTag], missing_steps: list[StepTag]) -> list[EpisodeStats]:
     """The figures of the episodes kept whole: from step 0 to their end, without a missing step."""
     episodes: dict[int, EpisodeStats] = {}
+    actions: dict[int, dict] = {}
     for tag in kept:
-        add_step(episodes.setdefault(tag.episode, EpisodeStats(tag.episode)), _raw_step(collected, tag))
+        add_step(episodes.setdefault(tag.episode, EpisodeStats(tag.episode)), _raw_step(collected, tag),
+                 actions.setdefault(tag.episode, {}))
     incomplete = {tag.episode for tag in missing_steps}
     return [stats for episode, stats in episodes.items() if stats.done and episode not in incomplete]
 
