@@ -155,16 +155,25 @@ class SimulatorNode(Node):
         response.result.successful = True
         return response
 
-    def on_action(self, msg) -> None:
-        self.action_guard.check()
-        if P.is_probe(msg.header.frame_id):
-            return  # a query-based attack's question to the policy, not the step's action
+    def current_step(self, msg, guard, what: str) -> StepTag | None:
+        """The tag of ``msg`` (``what``: an action, attack/timing), from a publisher ``guard`` admits, when it is the
+        current step's; None (warned) for another step's."""
+        guard.check()
         try:
             tag = StepTag.parse(msg.header.frame_id)
         except ValueError as err:
-            raise FatalNodeError(f"action with a bad header from {self.action_guard.describe()}: {err}") from None
+            raise FatalNodeError(f"{what} with a bad header from {guard.describe()}: {err}") from None
         if tag != self.tag:
-            self.get_logger().warning(f"ignoring an action for step {tag}; waiting for step {self.tag}")
+            self.get_logger().warning(f"ignoring {what} for step {tag}; waiting for step {self.tag}")
+            return None
+        return tag
+
+    def on_action(self, msg) -> None:
+        if P.is_probe(msg.header.frame_id):
+            self.action_guard.check()
+            return  # a query-based attack's question to the policy, not the step's action
+        tag = self.current_step(msg, self.action_guard, "an action")
+        if tag is None:
             return
         action = np.asarray(msg.effort, dtype=np.float64)
         if action.shape != (self.act_dim,):
@@ -176,13 +185,8 @@ class SimulatorNode(Node):
         self.try_step()
 
     def on_timing(self, msg) -> None:
-        self.timing_guard.check()
-        try:
-            tag = StepTag.parse(msg.header.frame_id)
-        except ValueError as err:
-            raise FatalNodeError(f"attack/timing with a bad header from {self.timing_guard.describe()}: {err}") from None
-        if tag != self.tag:
-            self.get_logger().warning(f"ignoring attack/timing for step {tag}; waiting for step {self.tag}")
+        tag = self.current_step(msg, self.timing_guard, P.TIMING)
+        if tag is None:
             return
         age = np.asarray(msg.position, dtype=np.float64)
         if age.shape != (len(P.TIMING_NAMES),) or not 0 <= age[2] <= self.action_delay or age[2] != int(age[2]):
