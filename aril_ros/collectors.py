@@ -18,6 +18,7 @@ from .envs import HORIZON
 from .learner_config import LearnerConfig
 from .learner_run import LearnerRun
 from .runlog import read_run
+from .timing import TimingAttack, TimingBudget
 
 
 @dataclass
@@ -52,6 +53,17 @@ class RoundSpec:
     """spsa's directions per iteration (0: its default)"""
     search: int = 0
     """aril_a's query-time search: candidates a step the policy is asked about (0: none)"""
+    delay: int = 0
+    """a timing attack's observation delay, in steps (:mod:`aril_ros.timing`; 0: none)"""
+    drop: float = 0.0
+    """a timing attack's share of dropped observations (0: none)"""
+    action_delay: int = 0
+    """a timing attack's action delay, in steps (0: none)"""
+    timing: str = "fixed"
+    """who picks within the timing budget (:data:`aril_ros.timing.CHOOSERS`)"""
+
+    def timing_attack(self) -> TimingAttack:
+        return TimingAttack(TimingBudget(self.delay, self.drop, self.action_delay), self.timing)
 
 
 @dataclass
@@ -113,7 +125,7 @@ def _attacked_rollout(run: LearnerRun, collecting, learner, spec: RoundSpec):
     """``collecting`` plays the round's episodes under its attack, which targets the learner pi_r."""
     attack = make_attack(spec.attack, run.layout, spec.eps, victim=learner, expert=run.expert,
                          adversary=spec.attack_file, mode=spec.mode)
-    return run.rollout(collecting, attack, spec.mode, spec.episodes, spec.seed)
+    return run.rollout(collecting, attack, spec.mode, spec.episodes, spec.seed, spec.timing_attack())
 
 
 class NoisyPolicy:

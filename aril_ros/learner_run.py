@@ -29,6 +29,7 @@ from .learners import fit_policy
 from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
 from .rollout import RolloutEngine
+from .timing import TimingAttack
 
 NOT_RECORDED = ("run_dir", "out", "threads", "workers", "address", "rounds", "eval_episodes", "source")
 """Settings a run may be resumed with changed: where and how fast it runs, how long it goes on, and what only
@@ -102,8 +103,8 @@ class LearnerRun:
         self.rounds.append(record)
         write_atomically(self.state_path, lambda partial: partial.write_text(json.dumps(self.state, indent=1)))
 
-    def rollout(self, policy, attack, mode: str, episodes: int, seed: int):
-        engine = RolloutEngine(self.cfg.env, policy, self.expert, attack, mode, n_envs=min(episodes, 16))
+    def rollout(self, policy, attack, mode: str, episodes: int, seed: int, timing: TimingAttack | None = None):
+        engine = RolloutEngine(self.cfg.env, policy, self.expert, attack, mode, n_envs=min(episodes, 16), timing=timing)
         try:
             return engine.rollout(episodes, seed)
         finally:

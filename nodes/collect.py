@@ -25,7 +25,8 @@ def collect_round(spec, log=_to_stderr) -> Path:
     cfg = GraphConfig(env=spec.env, mode=spec.mode, attack=spec.attack, eps=spec.eps, policy=spec.policy,
                       expert=spec.expert, attack_file=spec.attack_file, episodes=spec.episodes, seed=spec.seed,
                       record=str(spec.record), horizon=spec.horizon, domain=spec.domain, rescale=spec.rescale,
-                      k=spec.k, samples=spec.samples, search=spec.search)
+                      k=spec.k, samples=spec.samples, search=spec.search, delay=spec.delay, drop=spec.drop,
+                      action_delay=spec.action_delay, timing=spec.timing)
     try:
         Orchestrator(cfg, log=log).run()
     except (ValueError, GraphError) as err:  # bad files or settings, or a node that died or stalled

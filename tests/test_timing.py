@@ -215,3 +215,21 @@ def test_the_graph_refuses_observation_timing_where_the_simulator_publishes_the_
     with pytest.raises(GraphError, match="delay:= and drop:= are played by the attacker node .* give mode:=clean or "
                                          "sensory"):
         plan_run(GraphConfig(mode="physical", delay=1))
+
+
+@pytest.mark.slow
+def test_a_timed_cell_gives_the_same_figures_through_the_graph_as_on_the_engine(tmp_path):
+    """A cell with a timing attack (an aril eval's settings) reaches the graph whole: as a graph run (what the scorecard
+    and a DAgger round through the graph run) it gives the engine's figures."""
+    from aril_ros.cell_runner import CellRunner
+    from aril_ros.evaluation import EvalConfig
+    from tests.conftest import free_domain, policy_files
+
+    policy, expert = policy_files(tmp_path, ENV)
+    cell = EvalConfig(env=ENV, policy=str(policy), expert=str(expert), mode="sensory", attack="random", eps=0.1,
+                      episodes=2, seed=3, horizon=40, delay=1, drop=0.2, action_delay=1, timing="random")
+    quiet = lambda *a, **k: None  # noqa: E731
+    on_engine, = CellRunner("engine", 1, "").run([cell], quiet)
+    through_graph, = CellRunner("graph", 1, "", domain=str(free_domain())).run([cell], quiet)
+    assert through_graph["episodes"] == on_engine["episodes"]
+    assert through_graph["mean_expert_loss"] == pytest.approx(on_engine["mean_expert_loss"], abs=1e-6)
