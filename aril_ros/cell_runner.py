@@ -76,13 +76,20 @@ def described(cell: EvalConfig) -> str:
     """A cell's attack as its progress line names it: with its file and its search, which tell cells of one attack
     apart (a scorecard runs aril_a with three adversaries or searches)."""
     return (ATTACKS[cell.attack] + (f" ({Path(cell.attack_file).stem})" if cell.attack_file else "")
-            + (f" + search {cell.search}" if cell.search else ""))
+            + (f" + search {cell.search}" if cell.search else "")
+            + "".join(f", {name.replace('_', ' ')} {value:g}" for name, value in timing_of(cell).items()))
 
 
 def named(cell: EvalConfig) -> str:
     """A cell's attack in its log's file name: its name, its file's stem and its search."""
     return (cell.attack + (f"-{Path(cell.attack_file).stem}" if cell.attack_file else "")
-            + (f"-search{cell.search}" if cell.search else ""))
+            + (f"-search{cell.search}" if cell.search else "")
+            + "".join(f"-{name}{value:g}" for name, value in timing_of(cell).items()))
+
+
+def timing_of(cell: EvalConfig) -> dict:
+    """A cell's timing attack, the settings it sets (none: no timing attack)."""
+    return {name: value for name in ("delay", "drop", "action_delay") if (value := getattr(cell, name))}
 
 
 def figures(cell: EvalConfig, episodes: list[EpisodeStats], queries: int) -> dict:

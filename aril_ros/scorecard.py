@@ -91,6 +91,7 @@ from .report.plots import plot_scorecard_sweep
 from .report.stats import paired_drop, worst_attack
 from .report.text import scorecard_markdown
 from .sweep import session
+from .timing import TIMING_ROWS
 from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
 
 
@@ -114,6 +115,10 @@ class Budget:
     black_box: dict | None = None
     """per mode the black-box rows it scores unless ``attacks:=`` names others (None: every one); the white-box rows
     of a file are scored beside them"""
+    timing: tuple[str, ...] = ()
+    """the timing rows it scores (:data:`aril_ros.timing.TIMING_ROWS`), the policy otherwise clean: the quick budget
+    the delay alone (an external node's quick verdict stays within minutes: each row is a graph run), the full one
+    all three"""
 
     @property
     def spsa_queries(self) -> int:
@@ -161,9 +166,10 @@ wanted."""
 # engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8 where named, fd_fgsm FGSM^k's 10
 # iterations) and twice the paper's 1M steps
 BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, fd_iterations=1,
-                           scales="1", refines=1, black_box=QUICK_ROWS),
+                           scales="1", refines=1, black_box=QUICK_ROWS, timing=("delay",)),
            "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
-                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3, black_box=FULL_ROWS)}
+                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3, black_box=FULL_ROWS,
+                          timing=tuple(TIMING_ROWS))}
 VIAS = ("engine", "graph")
 
 
@@ -200,6 +206,9 @@ class ScorecardConfig:
     adversary_steps: int = arg(0, "ARIL-A's training steps per mode instead of the budget's (0: the budget's)",
                                low=0, high=10**9)
     horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
+    timing: int = arg(1, "the timing rows' budget k (0: no timing rows): the policy, clean otherwise, with every "
+                         "observation k steps late (both budgets), every action k steps late and k tenths of its "
+                         "observations dropped (full)", low=0, high=9)
     workers: int = arg(2, "CPUs of the local Ray that a policy file's or bundled name's cells, and the black-box "
                           "pipeline's ARIL-A trainings, run on as tasks (1: one after the other in this process); an "
                           "external node's cells run one after the other", low=1, high=1024)
@@ -225,6 +234,9 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         cleans = runner.run([cell(cfg, budget, "clean", "none", 0.0, policy=policy) for policy in tested], log,
                             "scorecard clean cell" + ("s" if len(tested) > 1 else ""))
         clean = dict(zip(tested, cleans))
+        timed = [(policy, row) for policy in tested for row in (budget.timing if cfg.timing else ())]
+        late = runner.run([timing_cell(cfg, budget, policy, row) for policy, row in timed], log,
+                          "scorecard timing cells") if timed else []
         made = pipelines_for(cfg, modes, eps, budget, out, log) if set(attacks) & set(PIPELINE_ATTACKS) else {}
         rows = {mode: rows_of(cfg, budget, attacks, mode, made.get(mode)) for mode in modes}
         # on the engine every row's sweep at once; through the graph each cell is a run, so every row at eps (the
@@ -249,15 +261,23 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
                          "attacks": mode_cells,
                          "worst": worst_case(mode_clean, mode_cells)}
         plot_scorecard_sweep(results[mode], scales, f"{cfg.policy} on {cfg.env}, {mode}", out / f"sweep-{mode}.png")
+    timing = {policy: {"cells": {row: got for (p, row), got in zip(timed, late) if p == policy}}
+              for policy in dict.fromkeys(p for p, _ in timed)}
+    for policy, t in timing.items():  # the timing rows' worst, judged as an attack's: the lowest return
+        t["worst"] = worst_case(clean[policy], {row: {1.0: got} for row, got in t["cells"].items()})
+        t["clean"] = clean[policy]
     payload = {**stamp("aril scorecard", cfg), "budget": {**vars(budget), "spsa_queries_per_step": budget.spsa_queries},
-               "scales": scales, "modes": results}
+               "scales": scales, "modes": results,
+               **({"timing": {"k": cfg.timing, "policies": timing}} if timing else {})}
     (out / "scorecard.json").write_text(json.dumps(payload, indent=1) + "\n")
     page = out / "scorecard.md"
     page.write_text(scorecard_markdown(payload, cfg.policy, f"{cfg.budget}: {budget.describe()}",
                                        via_of(cfg) == "graph"))
     log(f"[scorecard] {page}: " + "; ".join(
-        f"{mode} worst {SCORECARD_ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%"
-        for mode, r in results.items()))
+        [f"{mode} worst {SCORECARD_ATTACKS[r['worst']['attack']]} {r['worst']['drop_pct']:+.1f}%"
+         for mode, r in results.items()]
+        + [f"timing worst {TIMING_ROWS[t['worst']['attack']].format(k=cfg.timing)} {t['worst']['drop_pct']:+.1f}%"
+           for t in timing.values()]))
     return page
 
 
@@ -337,6 +357,14 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
                       attack_file=str(files[attack]) if attack in files else "", rescale=learned,
                       search=SEARCH if attack == SEARCH_ROW else 0, episodes=budget.episodes, seed=cfg.seed,
                       horizon=cfg.horizon, **iterations)
+
+
+def timing_cell(cfg: ScorecardConfig, budget: Budget, policy: str, row: str) -> EvalConfig:
+    """A timing row's cell: ``policy`` clean but for the timing attack ``row`` (:data:`aril_ros.timing.TIMING_ROWS`)
+    at the scorecard's budget, the most every step."""
+    late = {"delay": {"delay": cfg.timing}, "action_delay": {"action_delay": cfg.timing},
+            "drop": {"drop": cfg.timing / 10}}[row]
+    return dataclasses.replace(cell(cfg, budget, "clean", "none", 0.0, policy=policy), **late)
 
 
 def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:

@@ -31,6 +31,10 @@ from .args import arg
 from .step import DEFAULT_ACTION, applied_step, may_drop, seen_step
 
 CHOOSERS = ("fixed", "random")
+TIMING_ROWS = {"delay": "every observation {k} step(s) late", "action_delay": "every action {k} step(s) late",
+               "drop": "{k}0% of the observations dropped"}
+"""The timing rows of ``aril scorecard`` (the fixed chooser: the most every step, the policy otherwise clean) at its
+timing budget ``k`` (``timing:=``), as its page names each."""
 
 
 def timing_arg(name: str, where: str = ""):

@@ -85,9 +85,11 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_trained_against_it(small
     first, second = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"] for folder in (out, rerun))
     assert second["clean"] == first["clean"]
     assert second["attacks"] == {"aril_a": {"1.0": first["attacks"]["aril_a"]["1.0"]}}
-    # the cells ran as sweeps, whose progress is the scorecard's: the clean cell, then ARIL-A at eps alone
+    # the cells ran as sweeps, whose progress is the scorecard's: the clean cell, the quick budget's timing row (the
+    # policy a step late), then ARIL-A at eps alone
     assert [line.split(",")[0] for line in again if line.startswith("[sweep] scorecard")] == [
-        "[sweep] scorecard clean cell: 1/1 done", "[sweep] scorecard cells: 1/1 done"]
+        "[sweep] scorecard clean cell: 1/1 done", "[sweep] scorecard timing cells: 1/1 done",
+        "[sweep] scorecard cells: 1/1 done"]
 
 
 def test_the_page_quotes_each_attacks_paired_drop_and_questions_per_step_at_eps(small_card):
@@ -306,9 +308,10 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
                   log=lambda *a, **k: None)
     finally:
         cluster.shutdown()
-    by_graph, by_engine = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"]
-                           for folder in (tmp_path / "card", small_card[1]))
+    cards = [json.loads((folder / "scorecard.json").read_text()) for folder in (tmp_path / "card", small_card[1])]
+    by_graph, by_engine = (card["modes"]["sensory"] for card in cards)
     assert by_graph["clean"] == by_engine["clean"]
+    assert cards[0]["timing"]["policies"][str(mine)]["cells"] == cards[1]["timing"]["policies"]["dagger"]["cells"]
     # every row at eps, and the eps sweep (each cell a run) of the worst one alone; white-box fgsm: the file is the
     # node's victim
     worst = by_graph["worst"]["attack"]
@@ -316,7 +319,7 @@ def test_a_file_scored_through_the_graph_on_two_nodes_is_scored_as_the_engine_sc
     assert worst == min(("random", "fgsm"), key=lambda a: by_engine["attacks"][a]["1.0"]["mean_return"])
     assert by_graph["attacks"] == {worst: by_engine["attacks"][worst], other: {"1.0": by_engine["attacks"][other]["1.0"]}}
     assert sorted(p.name for p in (tmp_path / "card" / "logs").iterdir()) == sorted([
-        "clean-none-0.mcap", f"sensory-{worst}-0.3.mcap", f"sensory-{worst}-0.6.mcap", f"sensory-{other}-0.3.mcap"])
+        "clean-none-0.mcap", "clean-none-delay1-0.mcap", f"sensory-{worst}-0.3.mcap", f"sensory-{worst}-0.6.mcap", f"sensory-{other}-0.3.mcap"])
     page = (tmp_path / "card" / "scorecard.md").read_text()
     assert "a run of the ROS 2 graph" in page and "worst attack's alone: – marks a cell not run" in page
     row = next(line for line in page.splitlines() if line.startswith(f"| {SCORECARD_ATTACKS[other]} |"))
@@ -374,3 +377,35 @@ def test_page_warns_when_the_worst_cases_interval_is_as_wide_as_its_drop():
     assert "10 episodes do not pin this verdict down" in warning[0] and "`episodes:=100`" in warning[0]
     assert too_few_episodes({"drop_pct": -10.0, "ci95_pct": [-15.0, -5.0]}, 10)  # width 10 = |drop|: not narrower
     assert "`episodes:=100`" in too_few_episodes({"drop_pct": 0.0, "ci95_pct": [-3.0, 3.0]}, 10)[0]
+
+
+def test_timing_rows_score_the_policy_late_on_the_clean_cells_episodes(tmp_path):
+    """The full budget's timing rows (timing:=k: every observation k steps late, every action k steps late, k tenths
+    of the observations dropped) are aril eval's cells of the same episodes, the policy otherwise clean; the worst is
+    the lowest return, with its paired drop; timing:=0 scores none, and the quick budget the delay alone."""
+    from aril_ros.report.stats import paired_drop
+
+    cfg = ScorecardConfig(policy="dagger", env="Swimmer-v5", modes="sensory", budget="full", episodes=2, horizon=25,
+                          scales="1", attacks="random", timing=2, workers=1, out=str(tmp_path / "full"))
+    page = scorecard(cfg, log=lambda *a, **k: None).read_text()
+    card = json.loads((tmp_path / "full" / "scorecard.json").read_text())
+    assert card["timing"]["k"] == 2 and list(card["timing"]["policies"]) == ["dagger"]
+    timed = card["timing"]["policies"]["dagger"]
+    for row, settings in {"delay": {"delay": 2}, "action_delay": {"action_delay": 2}, "drop": {"drop": 0.2}}.items():
+        alone = evaluate(EvalConfig(env="Swimmer-v5", policy="dagger", episodes=2, seed=cfg.seed, horizon=25,
+                                    **settings))
+        assert [round(e["return"], 3) for e in timed["cells"][row]["episodes"]] == alone["returns"]
+    worst = min(timed["cells"], key=lambda row: timed["cells"][row]["mean_return"])
+    drop = paired_drop(card["modes"]["sensory"]["clean"], timed["cells"][worst])
+    assert timed["worst"]["attack"] == worst and timed["worst"]["drop_pct"] == drop["drop_pct"]
+    section = page.split("## Timing, 2 step(s)")[1]
+    assert "| every observation 2 step(s) late |" in section and "| 20% of the observations dropped |" in section
+    assert f"{drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}]**" in section
+
+    quick = dataclasses.replace(cfg, budget="quick", timing=1, out=str(tmp_path / "quick"))
+    scorecard(quick, log=lambda *a, **k: None)
+    assert list(json.loads((tmp_path / "quick" / "scorecard.json").read_text())["timing"]["policies"]["dagger"]
+                ["cells"]) == ["delay"]
+    none = dataclasses.replace(cfg, timing=0, out=str(tmp_path / "none"))
+    assert "## Timing" not in scorecard(none, log=lambda *a, **k: None).read_text()
+    assert "timing" not in json.loads((tmp_path / "none" / "scorecard.json").read_text())

@@ -145,8 +145,9 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
         def log(*parts, **_):  # every line with the seconds since the scoring began: where its minutes went
             print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
 
+        # no timing rows: the benchmark times the value verdict, as its cells scored before them did
         scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget,
-                                  episodes=episodes, seed=cfg.seed, scales="1", attacks=attacks,
+                                  episodes=episodes, seed=cfg.seed, scales="1", attacks=attacks, timing=0,
                                   workers=cfg.workers, out=str(folder)), log=log)
     minutes = (time.time() - started) / 60
     card = json.loads((folder / "scorecard.json").read_text())

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..envs import layout_of
 from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS, TABLE_SEARCH, WHITE_BOX
+from ..timing import TIMING_ROWS
 from .compute import compute_lines
 from .paper import BLACK_BOX_ROWS, PAPER_CLEAN, PAPER_OBS_DIM, PAPER_OVERALL, TABLE_ROWS
 from .stats import episodes_to_pin, paired_drop, worst_attack
@@ -323,4 +324,27 @@ def scorecard_markdown(card: dict, policy: str, budget: str, through_graph: bool
                          + ", ".join(f"{sweep[s]['mean_return']:.0f}" if s in sweep else "–" for s in card["scales"])
                          + " |")
         lines += ["", f"![return against eps, {mode}](sweep-{mode}.png)", ""]
-    return "\n".join(lines)
+    return "\n".join(lines + timing_lines(card, policy))
+
+
+def timing_lines(card: dict, policy: str) -> list[str]:
+    """The page's timing section (``card["timing"]``; none: nothing): per policy file the clean row and each timing
+    row's return and drop, its worst first."""
+    if "timing" not in card:
+        return []
+    k = card["timing"]["k"]
+    lines = [f"## Timing, {k} step(s)", "",
+             "The policy clean but for its timing: what it sees or does arrives late, the most every step (aril_ros's "
+             "docs/attacks-defenses.md, Timing attacks). Drops from its clean return, on the same episodes.", ""]
+    for file, t in card["timing"]["policies"].items():
+        worst = t["worst"]
+        lines += [*([f"`{file}`:", ""] if len(card["timing"]["policies"]) > 1 else []),
+                  f"**Worst: {TIMING_ROWS[worst['attack']].format(k=k)}, return {worst['return']:.1f}, "
+                  f"{worst['drop_pct']:+.1f}% [{worst['ci95_pct'][0]:+.1f}, {worst['ci95_pct'][1]:+.1f}]**.", "",
+                  "| timing | return | drop [95%] | expert loss |", "|---|---|---|---|"]
+        for row, got in t["cells"].items():
+            drop = paired_drop(t["clean"], got)
+            lines.append(f"| {TIMING_ROWS[row].format(k=k)} | {got['mean_return']:.1f} | {drop['drop_pct']:+.1f}% "
+                         f"[{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}] | {got['mean_expert_loss']:.4f} |")
+        lines.append("")
+    return lines
