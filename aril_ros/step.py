@@ -13,6 +13,11 @@ zero-order entries (``|delta| <= eps``):
   of the moved state and the dynamics continue from it. A state that ``delta`` leaves unchanged is not
   written (:func:`state_moved`), so a zero perturbation is no perturbation: the step is clean's.
 
+Under a timing attack (:mod:`aril_ros.timing`) the policy may see an earlier step's observation, or the last one it
+saw again (:func:`seen_step`, a drop within its share: :func:`may_drop`), and the simulator apply an earlier step's
+action (:func:`applied_step`; before the episode's first, :data:`DEFAULT_ACTION`), drawn from a stream of the episode's
+own (:func:`timing_rng`).
+
 In every mode the expert labels ``s``, the true state before the attack, and the step's loss is the
 disagreement ``||a - pi_e(s)||^2`` (:func:`disagreement`). Episode ``e`` of a run with ``seed``
 resets its env with ``seed + e`` and draws its attack noise from :func:`episode_rng`, so its
