@@ -334,8 +334,8 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
 @pytest.mark.slow
 def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
     """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
-    was asked: each run's steps (the clean one's too), each cell's questions, and each mode's surrogate's questions
-    (asked after the clean run, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
+    was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and each mode's
+    surrogate's questions (asked after those two runs, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
     file, and SPSA^k's questions are counted in test_scorecard."""
     _, card, _, tags, _ = another_architectures_card
     cells = []
@@ -350,13 +350,17 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
     surrogates = sum(result["surrogate_queries"] for result in card["modes"].values())
     clean = card["modes"]["sensory"]["clean"]
-    assert len(tags) == steps(clean) + sum(steps(cell) + cell["queries"] for cell in cells) + surrogates
-    expected = [(steps(clean), 0)] + [(steps(cell), cell["queries"]) for cell in cells]
-    expected[1] = (expected[1][0], expected[1][1] + surrogates)
+    late = list(card["timing"]["policies"]["external"]["cells"].values())  # the quick budget's timing row, no probes
+    assert len(late) == 1 and [e["steps"] for e in late[0]["episodes"]] == [20, 20]
+    before = steps(clean) + sum(map(steps, late))  # the runs before the pipelines ask the node anything
+    assert len(tags) == before + sum(steps(cell) + cell["queries"] for cell in cells) + surrogates
+    expected = [(steps(clean), 0)] + [(steps(cell), 0) for cell in late] + [(steps(cell), cell["queries"])
+                                                                             for cell in cells]
+    expected[1 + len(late)] = (expected[1 + len(late)][0], expected[1 + len(late)][1] + surrogates)
     assert runs_answered(tags) == expected
-    # between the clean run and the first cell's, the surrogates' questions (each connection's numbered from 0): the
+    # between the timing run and the first cell's, the surrogates' questions (each connection's numbered from 0): the
     # modes' pipelines side by side, each mode's copy, then each mode's refinement
-    between = tags[steps(clean):tags.index("0/0", steps(clean))]
+    between = tags[before:tags.index("0/0", before)]
     starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
     copy_sensory, copy_physical, refine_sensory, refine_physical = np.diff([*starts, len(between)]).tolist()
     assert [copy_sensory + refine_sensory, copy_physical + refine_physical] == [
