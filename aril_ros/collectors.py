@@ -18,7 +18,7 @@ from .envs import HORIZON
 from .learner_config import LearnerConfig
 from .learner_run import LearnerRun
 from .runlog import read_run
-from .timing import TimingAttack, TimingBudget
+from .timing import TimingAttack
 
 
 @dataclass
@@ -61,9 +61,6 @@ class RoundSpec:
     """a timing attack's action delay, in steps (0: none)"""
     timing: str = "fixed"
     """who picks within the timing budget (:data:`aril_ros.timing.CHOOSERS`)"""
-
-    def timing_attack(self) -> TimingAttack:
-        return TimingAttack(TimingBudget(self.delay, self.drop, self.action_delay), self.timing)
 
 
 @dataclass
@@ -125,7 +122,7 @@ def _attacked_rollout(run: LearnerRun, collecting, learner, spec: RoundSpec):
     """``collecting`` plays the round's episodes under its attack, which targets the learner pi_r."""
     attack = make_attack(spec.attack, run.layout, spec.eps, victim=learner, expert=run.expert,
                          adversary=spec.attack_file, mode=spec.mode)
-    return run.rollout(collecting, attack, spec.mode, spec.episodes, spec.seed, spec.timing_attack())
+    return run.rollout(collecting, attack, spec.mode, spec.episodes, spec.seed, TimingAttack.of(spec))
 
 
 class NoisyPolicy:

@@ -14,7 +14,7 @@ from .policy import resolve_policy
 from .registry import ATTACKS, DEFAULT_ENV, MAX_EPS, MODES, attack_budget, choose_attack, for_task
 from .rollout import RolloutEngine
 from .step import EpisodeStats, summarise_episodes
-from .timing import TimingAttack, TimingBudget, timing_arg
+from .timing import TimingAttack, timing_arg
 from .sweep import run_tasks, shipped
 
 
@@ -64,7 +64,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     attack = make_attack(attack_name, layout, attack_budget(cfg.env, cfg.mode, attack_name, cfg.eps), victim=policy,
                          expert=expert, steps=cfg.k or None, samples=cfg.samples or None,
                          adversary=choice.file, mode=cfg.mode, rescale=cfg.rescale, search=cfg.search)
-    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop, cfg.action_delay), cfg.timing)
+    timing = TimingAttack.of(cfg)
     engine = RolloutEngine(cfg.env, policy, expert, attack, cfg.mode, min(cfg.n_envs, cfg.episodes), cfg.horizon,
                            timing=timing)
     started = time.time()
@@ -80,8 +80,7 @@ def evaluate(cfg: EvalConfig, progress=None) -> dict:
     summary = summarise_episodes(episodes)
     return {"env": cfg.env, "policy": cfg.policy, "expert": cfg.expert, "mode": cfg.mode, "attack": attack_name,
             "eps": engine.attack.eps, "seed": cfg.seed, **summary,
-            **({"timing": {"delay": cfg.delay, "drop": cfg.drop, "action_delay": cfg.action_delay,
-                           "chooser": cfg.timing}} if timing.budget.any else {}),
+            **({"timing": timing.record()} if timing.budget.any else {}),
             **({"queries": attack.queries, "queries_per_step": round(attack.queries_per_step, 2)}
                if isinstance(attack, QueryAttack) else {}),
             "steps_per_s": round(summary["steps"] / (time.time() - started), 1)}

@@ -23,6 +23,7 @@ where the share allows it.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,16 @@ class TimingAttack:
     def __post_init__(self):
         if self.chooser not in CHOOSERS:
             raise ValueError(f"unknown timing chooser {self.chooser!r}; choose one of {', '.join(CHOOSERS)}")
+
+    @classmethod
+    def of(cls, settings) -> TimingAttack:
+        """The timing attack a command's settings name: their ``delay``, ``drop``, ``action_delay`` and ``timing``
+        (:func:`timing_arg`'s arguments)."""
+        return cls(TimingBudget(settings.delay, settings.drop, settings.action_delay), settings.timing)
+
+    def record(self) -> dict:
+        """The attack as a log, a summary or a result records it: its budget and its chooser."""
+        return {**dataclasses.asdict(self.budget), "chooser": self.chooser}
 
     def timeline(self, n: int, obs_dim: int, act_dim: int, rngs: list[np.random.Generator]) -> Timeline:
         """The timing of ``n`` episodes run side by side, each drawing from its own stream in ``rngs``."""

@@ -3,7 +3,6 @@ attack and its settings, and each file that acts in it (policy, expert, adversar
 metadata and its digest (the nodes load it again in their own processes)."""
 from __future__ import annotations
 
-import dataclasses
 import datetime
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ from aril_ros.registry import (ATTACKS, BUNDLED_NAMES, BUNDLED_POLICIES, DEFAULT
 from aril_ros.render import frame_size
 from aril_ros.runlog.layout import TIMING_KEY
 from aril_ros.sweep import digest_of
-from aril_ros.timing import TimingAttack, TimingBudget, timing_arg
+from aril_ros.timing import TimingAttack, timing_arg
 from aril_ros_nodes.launcher import GraphError, domain_candidates
 
 
@@ -127,12 +126,8 @@ class GraphRun:
             "zero_order": self.layout.zero_order_mask.tolist(),
             "action_names": list(self.layout.action_names), "aril_ros": __version__,
             "git_revision": git_revision(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
-            **({TIMING_KEY: self.timing_record()} if self.timing else {}),
+            **({TIMING_KEY: self.timing.record()} if self.timing else {}),
         }
-
-    def timing_record(self) -> dict:
-        """The timing attack as the log and the summary record it: its budget and its chooser."""
-        return {**dataclasses.asdict(self.timing.budget), "chooser": self.timing.chooser}
 
     def node_params(self) -> dict[str, dict]:
         """Each node's parameters; no policy node for an external policy."""
@@ -170,7 +165,7 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                                 f"{' and '.join(f'attack:={u}' for u in users)} only, got attack:={choice.name}")
     if cfg.render:
         frame_size(cfg.render_size)
-    timing = TimingAttack(TimingBudget(cfg.delay, cfg.drop, cfg.action_delay), cfg.timing)
+    timing = TimingAttack.of(cfg)
     if (cfg.delay or cfg.drop) and cfg.mode == "physical":
         raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "
                          "which in mode physical the simulator publishes: give mode:=clean or sensory (the engine, "

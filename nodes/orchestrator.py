@@ -132,7 +132,7 @@ class Orchestrator:
             "record": str(self.record) if self.record else None, "domain": domain,
             **({"camera_frames": recorder.frames_written} if self.cfg.render else {}),
             "attack_settings": self.plan.attack_settings(), "files": self.plan.files,
-            **({"timing": self.plan.timing_record()} if self.plan.timing else {}),
+            **({"timing": self.plan.timing.record()} if self.plan.timing else {}),
         }
 
     # ------------------------------------------------------------------------------- connecting

@@ -27,15 +27,15 @@ class StepFault(ValueError):
 
 def add_step(episode: EpisodeStats, messages: dict[str, bytes], actions: dict[int, np.ndarray]) -> None:
     """A step's figures (``messages``: its CDR bytes by topic) into its episode's; the episode ends with the step
-    whose reward says terminated or truncated. ``actions``: the episode's actions so far by step, this one's added:
-    under an action delay (the step's ``attack/timing``) the action applied, whose disagreement counts, is an
-    earlier one (:func:`aril_ros.step.applied_step`)."""
+    whose reward says terminated or truncated. ``actions``: a timed run's episode's actions so far by step, this
+    one's added: under an action delay (the step's ``attack/timing``) the action applied, whose disagreement counts,
+    is an earlier one (:func:`aril_ros.step.applied_step`)."""
     def values(topic):
         return cdr.joint_values(messages[topic], VALUES[topic])
 
     t, action = episode.steps, values(P.ACTION)
-    actions[t] = action
-    if P.TIMING in messages:
+    if P.TIMING in messages:  # kept only where an action delay may apply it later
+        actions[t] = action
         earlier = int(applied_step(t, int(values(P.TIMING)[2])))
         action = actions[earlier] if earlier >= 0 else np.full_like(action, DEFAULT_ACTION)
     reward, terminated, truncated = values(P.REWARD)
