@@ -1,4 +1,5 @@
-"""ARIL-A, the learned adversary (paper §4.2), trained by PPO on vectorised in-process simulators.
+"""ARIL-A, the learned adversary (paper §4.2), trained by PPO on vectorised in-process simulators; and the learned
+timing adversary (:mod:`aril_ros.timing_adversary`), the same training with time for values.
 
 The adversary (:class:`aril_ros.adversary_net.AdversaryNet`) is a distribution over perturbations of the
 zero-order entries within ``±eps`` (by default a categorical over ``{-eps, 0, +eps}`` per entry), given the
@@ -8,6 +9,9 @@ is the victim's disagreement with the expert on the true state, ``||a_h - pi_e(s
 ``a_h`` is the victim's action on what the attack made it see (sensory) or on the moved state
 (physical), by the step rules of :mod:`aril_ros.step`; PPO maximises the discounted sum. It never
 needs the victim's gradients: it only queries actions, so any black-box policy can be attacked.
+How a sample acts on a step is a :class:`ValuePlay`'s (a perturbation) or, in mode ``clean`` with a timing budget
+(``delay:=``, ``drop:=``, ``action_delay:=``), a :class:`TimingPlay`'s (when the observation is late or dropped and
+the action applied late; ``a_h`` is then the action applied).
 
 The critic is split in two: the victim's disagreement at the state *without* the attack, computed
 exactly by querying the victim (``baseline``), plus a learned remainder. A perturbation moves the
@@ -31,7 +35,7 @@ import torch
 from torch import nn
 
 from . import plugins, seeds
-from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, input_size, load_adversary, save_adversary
+from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, load_adversary, save_adversary
 from .args import arg
 from .envs import layout_of
 from .policy import load_policy, policy_file, resolve_policy
@@ -40,6 +44,8 @@ from .registry import ATTACKED_MODES, DEFAULT_ENV, MAX_EPS, check_name, for_task
 from .rollout import SimBatch
 from .step import disagreement
 from .sweep import Produced, digest_of, run_tasks, shipped
+from .timing import Timeline, TimingBudget, TimingChoice, timing_arg
+from .timing_adversary import TimingNet, load_timing_adversary, save_timing_adversary
 
 
 class RunningStd:
@@ -65,8 +71,12 @@ class AdversaryConfig:
     """Arguments of ``aril train-adversary`` (defaults: the paper's Table 3 and appendix)."""
 
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
-    mode: str = arg("sensory", "sensory or physical")
-    eps: float = arg(0.05, "L-infinity budget on the zero-order entries", low=0.0, high=MAX_EPS)
+    mode: str = arg("sensory", "sensory or physical: a value adversary (ARIL-A); clean with a timing budget "
+                               "(delay:=, drop:=, action_delay:=): a timing adversary (aril_ros.timing_adversary)")
+    eps: float = arg(0.05, "L-infinity budget on the zero-order entries (a value adversary)", low=0.0, high=MAX_EPS)
+    delay: int = timing_arg("delay", "a timing adversary's budget, mode:=clean")
+    drop: float = timing_arg("drop", "a timing adversary's budget, mode:=clean")
+    action_delay: int = timing_arg("action_delay", "a timing adversary's budget, mode:=clean")
     victim: str = arg("expert", "the attacked policy: a bundled name, a policy file, or ros (a running policy node "
                                 "on observation -> action in this ROS_DOMAIN_ID, through the installed ROS side); "
                                 "only its actions are used")
@@ -84,10 +94,10 @@ class AdversaryConfig:
     vf_coef: float = arg(0.5, "value loss weight (Table 3)", low=0.0, high=10.0)
     max_grad_norm: float = arg(0.5, "gradient norm clip", low=0.0, high=1000.0)
     hidden: int = arg(64, "width of the two hidden layers", low=1, high=4096)
-    policy: str = arg("categorical", "categorical: one of {-eps, 0, +eps} per zero-order entry (the corners of the "
+    policy: str = arg("categorical", "a value adversary's: categorical: one of {-eps, 0, +eps} per zero-order entry (the corners of the "
                                      "L-infinity box, where a one-step attack's optimum lies); gaussian: a Normal "
                                      "around eps*tanh(net), clipped to the box (the adversaries made before)")
-    inputs: str = arg("state+actions", "state: the true observation alone; state+actions: also the victim's action "
+    inputs: str = arg("state+actions", "a value adversary's: state: the true observation alone; state+actions: also the victim's action "
                                        "on it unperturbed and the expert's (queried answers, never weights)")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation",
                       low=1, high=1_000_000)
@@ -98,7 +108,8 @@ class AdversaryConfig:
                        "(aril_ros.seeds.adversary_training)", low=0, high=2**31 - 1)
     init: str = arg("", "start from this adversary file (same env, mode, eps and width; its input scaling is kept) "
                         "instead of fresh weights: ARIL's warm start from the previous round's adversary")
-    out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt)")
+    out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt, a timing one "
+                       "runs/timing-adversary-<env>.pt)")
     threads: int = arg(1, "torch threads", low=1, high=256)
 
 
@@ -127,10 +138,11 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
     made_by = stamp("aril train-adversary", cfg)
     sims, resets = SimBatch(cfg.env, cfg.n_envs), EnvSeeds(seeds.adversary_training(cfg.seed))
     net = initial_adversary(cfg, *input_scaling(cfg, sims, victim, expert, resets))
+    play = TimingPlay(cfg, net, victim) if timed(cfg) else ValuePlay(cfg, sims, net, victim)
     # foreach: one kernel per step for all the parameters, the same update as the per-tensor loop
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, eps=1e-5, foreach=True)
     gen = torch.Generator().manual_seed(cfg.seed)
-    collector = Collector(cfg, sims, resets, net, victim, expert, gen)
+    collector = Collector(cfg, sims, resets, net, play, victim, expert, gen)
     started, steps = time.time(), 0
     while steps < cfg.steps:
         batch = collector.collect()
@@ -144,7 +156,8 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
         **({"victim_sha256": victim_digest} if victim_digest else {}), "expert": cfg.expert,
         "steps": steps, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
         "final_episode_loss": collector.recent_loss()}
-    out = save_adversary(net, cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt")
+    out = (save_timing_adversary(net, cfg.out or f"runs/timing-adversary-{cfg.env}.pt") if timed(cfg)
+           else save_adversary(net, cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt"))
     log(json.dumps({"out": str(out), "steps": steps, "steps_per_s": round(steps / (time.time() - started), 1)}))
     return out
 
@@ -206,9 +219,27 @@ def training_task(settings: dict, log=None) -> Path:
     return train_adversary(cfg, log=log or print)
 
 
+def timing_budget(cfg: AdversaryConfig) -> TimingBudget:
+    return TimingBudget(cfg.delay, cfg.drop, cfg.action_delay)
+
+
+def timed(cfg: AdversaryConfig) -> bool:
+    """Whether ``cfg`` trains a timing adversary (mode clean, a timing budget) rather than a value one."""
+    return cfg.mode == "clean"
+
+
 def check_config(cfg: AdversaryConfig) -> None:
+    if timed(cfg):
+        if not timing_budget(cfg).any:
+            raise ValueError("mode:=clean trains a timing adversary: give its budget, delay:=, drop:= or "
+                             "action_delay:= (a value adversary: mode:=sensory or physical)")
+        return
     if cfg.mode not in ATTACKED_MODES:
-        raise ValueError(f"mode:= must be sensory or physical, got {cfg.mode!r}")
+        raise ValueError(f"mode:= must be sensory or physical (a value adversary) or clean (a timing one), "
+                         f"got {cfg.mode!r}")
+    if timing_budget(cfg).any:
+        raise ValueError(f"a timing budget (delay:=, drop:=, action_delay:=) trains a timing adversary, in "
+                         f"mode:=clean; mode:={cfg.mode} trains a value adversary, and one of both is not built")
     if not cfg.eps > 0:
         raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
     check_name("adversary policy", cfg.policy, POLICIES)
@@ -229,21 +260,24 @@ class EnvSeeds:
 
 def input_scaling(cfg: AdversaryConfig, sims: SimBatch, victim, expert, resets: EnvSeeds
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and std of the adversary's inputs on the states the victim visits unattacked over ``warmup``
-    steps: reset states alone have almost no spread, and would blow the normalised inputs up once it runs."""
+    """Mean and std of the adversary's inputs (a timing adversary's: of the observation) on the states the victim
+    visits unattacked over ``warmup`` steps: reset states alone have almost no spread, and would blow the normalised
+    inputs up once it runs."""
     rows = range(len(sims))
     obs = sims.reset(resets.take(len(sims)))
     visited = []
     for _ in range(cfg.warmup + 1):
         action = victim.act(obs)
-        visited.append(input_rows(cfg.inputs, obs.copy(), action, expert.act(obs)))
+        visited.append(obs.copy() if timed(cfg) else input_rows(cfg.inputs, obs.copy(), action, expert.act(obs)))
         obs = sims.step(action, rows)[0]
     visited = np.concatenate(visited)
     return visited.mean(0), visited.std(0) + 1e-3
 
 
-def initial_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.ndarray) -> AdversaryNet:
+def initial_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.ndarray) -> AdversaryNet | TimingNet:
     """Fresh seeded weights, or (``init:=``) the previous round's adversary with its input scaling."""
+    if timed(cfg):
+        return initial_timing_adversary(cfg, obs_mean, obs_std)
     if cfg.init:
         net = load_adversary(cfg.init, cfg.env, cfg.mode).train()
         have = (net.eps, net.meta["hidden"], net.meta["policy"], net.meta["inputs"])
@@ -259,6 +293,69 @@ def initial_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.nd
     with torch.random.fork_rng():  # seeded initial weights without touching the global generator
         torch.manual_seed(cfg.seed)
         return AdversaryNet(meta)
+
+
+def initial_timing_adversary(cfg: AdversaryConfig, obs_mean: np.ndarray, obs_std: np.ndarray) -> TimingNet:
+    """A timing adversary's fresh seeded weights, or (``init:=``) a timing adversary of the same budget."""
+    if cfg.init:
+        net = load_timing_adversary(cfg.init, asdict(timing_budget(cfg)), cfg.env).train()
+        if net.meta["hidden"] != cfg.hidden:
+            raise ValueError(f"init:={cfg.init} has width {net.meta['hidden']}, not hidden:={cfg.hidden}")
+        return net
+    layout = layout_of(cfg.env)
+    meta = {"env_id": cfg.env, "mode": "clean", "budget": asdict(timing_budget(cfg)), "obs_dim": layout.obs_dim,
+            "act_dim": layout.act_dim, "hidden": cfg.hidden, "obs_mean": obs_mean.tolist(),
+            "obs_std": obs_std.tolist(), "provenance": {}}
+    with torch.random.fork_rng():
+        torch.manual_seed(cfg.seed)
+        return TimingNet(meta)
+
+
+class ValuePlay:
+    """How a value adversary's sample acts on a step: the perturbation it stands for, by the mode's rule."""
+
+    def __init__(self, cfg: AdversaryConfig, sims: SimBatch, net: AdversaryNet, victim):
+        self.mode, self.sims, self.net, self.victim = cfg.mode, sims, net, victim
+
+    def inputs(self, obs: np.ndarray, clean, label, rows) -> np.ndarray:
+        return self.net.inputs(obs, clean, label)
+
+    def act(self, sample: torch.Tensor, obs: np.ndarray, rows) -> np.ndarray:
+        """The action applied: the victim's on what the perturbation made it see."""
+        delta = np.zeros_like(obs)
+        delta[:, : self.net.n_position] = self.net.delta(sample).double().numpy()
+        return self.victim.act(self.sims.seen(self.mode, obs, delta, rows))
+
+    def restart(self, row: int) -> None:
+        pass
+
+
+class TimingPlay:
+    """How a timing adversary's sample acts on a step: the ages and the drop it asks for, within the budget's rules
+    (:class:`~aril_ros.timing.Timeline`, one step per simulator: each begins its next episode where one ends)."""
+
+    def __init__(self, cfg: AdversaryConfig, net: TimingNet, victim):
+        layout = layout_of(cfg.env)
+        self.net, self.victim = net, victim
+        self.timeline = Timeline(timing_budget(cfg), None, cfg.n_envs, layout.obs_dim, layout.act_dim, [])
+        self.t = np.zeros(cfg.n_envs, dtype=np.int64)
+
+    def inputs(self, obs: np.ndarray, clean, label, rows) -> np.ndarray:
+        rows = np.asarray(rows)
+        return self.net.inputs(obs, self.timeline.may_drop_now(self.t[rows], rows))
+
+    def act(self, sample: torch.Tensor, obs: np.ndarray, rows) -> np.ndarray:
+        """The action applied: the victim's on the observation delivered, as late as asked, applied as late."""
+        rows, asked = np.asarray(rows), sample.long().numpy()
+        choice = TimingChoice(asked[:, 0], asked[:, 1].astype(bool), asked[:, 2])
+        seen = self.timeline.deliver(self.t[rows], obs, rows, choice)[0]
+        applied = self.timeline.apply(self.t[rows], self.victim.act(seen), rows)[0]
+        self.t[rows] += 1
+        return applied
+
+    def restart(self, row: int) -> None:
+        self.t[row] = 0
+        self.timeline.restart([row])
 
 
 @dataclass
@@ -282,11 +379,10 @@ class Rollout:
 class Collector:
     """Runs the adversary against the victim on the simulators, step by step, resetting finished episodes."""
 
-    def __init__(self, cfg: AdversaryConfig, sims: SimBatch, resets: EnvSeeds, net: AdversaryNet, victim, expert,
-                 gen: torch.Generator):
-        self.cfg, self.sims, self.resets, self.net = cfg, sims, resets, net
+    def __init__(self, cfg: AdversaryConfig, sims: SimBatch, resets: EnvSeeds, net: AdversaryNet | TimingNet,
+                 play: ValuePlay | TimingPlay, victim, expert, gen: torch.Generator):
+        self.cfg, self.sims, self.resets, self.net, self.play = cfg, sims, resets, net, play
         self.victim, self.expert, self.gen = victim, expert, gen
-        self.n_position = layout_of(cfg.env).n_position
         self.obs = sims.reset(resets.take(len(sims)))
         n = len(sims)
         self.episode_loss, self.episode_return, self.discounted = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -308,24 +404,20 @@ class Collector:
     def collect(self) -> Rollout:
         cfg, n, T = self.cfg, len(self.sims), self.cfg.rollout
         rows = range(n)
-        buf = Rollout(obs=torch.zeros(T, n, input_size(self.net.meta)),
-                      sample=torch.zeros(T, n, self.n_position), logp=torch.zeros(T, n), reward=torch.zeros(T, n),
+        buf = Rollout(obs=torch.zeros(T, n, self.net.input_width),
+                      sample=torch.zeros(T, n, self.net.sample_width), logp=torch.zeros(T, n), reward=torch.zeros(T, n),
                       value=torch.zeros(T, n), base=torch.zeros(T, n), done=torch.zeros(T, n),
                       next_value=torch.zeros(n))
         for t in range(T):
-            # the adversary perturbs, the victim acts, the expert labels the true state
+            # the adversary perturbs (or times), the victim acts, the expert labels the true state
             clean, label = self.answers(self.obs)
-            x = torch.as_tensor(self.net.inputs(self.obs, clean, label), dtype=torch.float32)
+            x = torch.as_tensor(self.play.inputs(self.obs, clean, label, rows), dtype=torch.float32)
             with torch.no_grad():
-                dist = self.net.distribution(x)
-                sample = self.net.draw(dist, self.gen)
-                buf.logp[t] = dist.log_prob(sample).sum(-1)
+                # the entropy for the progress line only: once a rollout, not every step
+                sample, buf.logp[t], entropy = self.net.sample(x, self.gen, entropy=t == T - 1)
                 remainder = self.net.value(x)
-                if t == T - 1:  # for the progress line only: once a rollout, not every step
-                    self.entropy = float(dist.entropy().mean())
-            delta = np.zeros_like(self.obs)
-            delta[:, : self.n_position] = self.net.delta(sample).double().numpy()
-            action = self.victim.act(self.sims.seen(cfg.mode, self.obs, delta, rows))
+            self.entropy = self.entropy if entropy is None else entropy
+            action = self.play.act(sample, self.obs, rows)
             loss = disagreement(action, label)
             # the perturbation moves the disagreement by little next to how much it varies from state to
             # state, more than a learned value can follow: the unperturbed disagreement, known exactly for
@@ -345,23 +437,26 @@ class Collector:
             self.episode_return += env_reward
             stopped = np.flatnonzero(truncated & ~terminated)  # time limit: bootstrap from the state it stopped in
             if stopped.size:  # all at once: every simulator reaches the horizon at the same step
-                reward[torch.as_tensor(stopped)] += cfg.gamma * self.value_of(self.obs[stopped], scale)
+                reward[torch.as_tensor(stopped)] += cfg.gamma * self.value_of(self.obs[stopped], scale, stopped)
             for i in np.flatnonzero(terminated | truncated):
                 self.discounted[i] = 0.0
                 self.finished_loss.append(self.episode_loss[i])
                 self.finished_return.append(self.episode_return[i])
                 self.episode_loss[i] = self.episode_return[i] = 0.0
                 self.obs[i] = self.sims.reset(self.resets.take(1), rows=[i])[0]
+                self.play.restart(i)
             buf.done[t] = torch.as_tensor(terminated | truncated, dtype=torch.float32)
             buf.reward[t] = reward
-        buf.next_value = self.value_of(self.obs, scale)
+        buf.next_value = self.value_of(self.obs, scale, rows)
         return buf
 
-    def value_of(self, states: np.ndarray, scale: float) -> torch.Tensor:
-        """The full value of ``states``: the learned remainder plus their unperturbed disagreement."""
+    def value_of(self, states: np.ndarray, scale: float, rows) -> torch.Tensor:
+        """The full value of ``states`` (the simulators ``rows``'): the learned remainder plus their unperturbed
+        disagreement."""
         clean, label = self.answers(states)
         with torch.no_grad():
-            remainder = self.net.value(torch.as_tensor(self.net.inputs(states, clean, label), dtype=torch.float32))
+            remainder = self.net.value(torch.as_tensor(self.play.inputs(states, clean, label, rows),
+                                                       dtype=torch.float32))
         return remainder + torch.as_tensor(self.unperturbed_loss(clean, label) / scale, dtype=torch.float32)
 
     def recent_loss(self) -> float | None:
@@ -371,10 +466,12 @@ class Collector:
     def progress_line(self, steps: int, seconds: float) -> str:
         recent = self.finished_return[-4 * len(self.sims):]
         loss = self.recent_loss()
-        return (f"[train-adversary {self.cfg.env} {self.cfg.mode} eps={self.cfg.eps}] step {steps:>8d}  "
+        what = (", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in asdict(timing_budget(self.cfg)).items() if v)
+                if timed(self.cfg) else f"{self.cfg.mode} eps={self.cfg.eps}")
+        return (f"[train-adversary {self.cfg.env} {what}] step {steps:>8d}  "
                 f"{steps / seconds:6.0f} steps/s  episode loss {float('nan') if loss is None else loss:9.1f}  "
                 f"victim return {np.mean(recent) if recent else float('nan'):8.1f}  "
-                f"entropy/entry {self.entropy:.3f}")
+                f"entropy/{'choice' if timed(self.cfg) else 'entry'} {self.entropy:.3f}")
 
 
 def advantages_gae(batch: Rollout, cfg: AdversaryConfig) -> tuple[torch.Tensor, torch.Tensor]:

@@ -36,7 +36,7 @@ CHOICES = 3
 """A categorical adversary's choices per entry, in order: -eps, 0, +eps."""
 
 
-def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
+def mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
                          nn.Linear(hidden, n_out))
 
@@ -72,8 +72,8 @@ class AdversaryNet(nn.Module):
         self.eps, self.n_position = float(meta["eps"]), n_out
         self.categorical = meta["policy"] == "categorical"
         self.takes_actions = meta["inputs"] == "state+actions"
-        self.mean_net = _mlp(n_in, hidden, n_out * CHOICES if self.categorical else n_out)
-        self.value_net = _mlp(n_in, hidden, 1)
+        self.mean_net = mlp(n_in, hidden, n_out * CHOICES if self.categorical else n_out)
+        self.value_net = mlp(n_in, hidden, 1)
         if not self.categorical:
             self.log_std = nn.Parameter(torch.full((n_out,), math.log(0.1 * self.eps)))
         self.register_buffer("obs_mean", torch.tensor(meta["obs_mean"], dtype=torch.float32))
@@ -107,6 +107,22 @@ class AdversaryNet(nn.Module):
         log_p = logits - logits.logsumexp(-1, keepdim=True)
         chosen = log_p.gather(-1, sample.long().unsqueeze(-1)).squeeze(-1)
         return chosen.sum(-1), -(log_p.exp() * log_p).sum((-2, -1))
+
+    @property
+    def input_width(self) -> int:
+        return input_size(self.meta)
+
+    @property
+    def sample_width(self) -> int:
+        """Columns of a sample: one per zero-order entry."""
+        return self.n_position
+
+    def sample(self, x: torch.Tensor, gen: torch.Generator, entropy: bool = False
+               ) -> tuple[torch.Tensor, torch.Tensor, float | None]:
+        """A training sample per row (:meth:`draw`), its log-probability and (``entropy``) the mean entropy per entry."""
+        dist = self.distribution(x)
+        sample = self.draw(dist, gen)
+        return sample, dist.log_prob(sample).sum(-1), (float(dist.entropy().mean()) if entropy else None)
 
     def draw(self, dist: torch.distributions.Distribution, gen: torch.Generator) -> torch.Tensor:
         """A sample of ``dist`` from ``gen`` (choice indices, or perturbations before clipping)."""

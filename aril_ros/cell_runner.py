@@ -77,14 +77,21 @@ def described(cell: EvalConfig) -> str:
     apart (a scorecard runs aril_a with three adversaries or searches)."""
     return (ATTACKS[cell.attack] + (f" ({Path(cell.attack_file).stem})" if cell.attack_file else "")
             + (f" + search {cell.search}" if cell.search else "")
-            + "".join(f", {name.replace('_', ' ')} {value:g}" for name, value in timing_of(cell).items()))
+            + "".join(f", {name.replace('_', ' ')} {value:g}" for name, value in timing_of(cell).items())
+            + (f" ({chooser(cell)})" if timing_of(cell) and cell.timing != "fixed" else ""))
 
 
 def named(cell: EvalConfig) -> str:
     """A cell's attack in its log's file name: its name, its file's stem and its search."""
     return (cell.attack + (f"-{Path(cell.attack_file).stem}" if cell.attack_file else "")
             + (f"-search{cell.search}" if cell.search else "")
-            + "".join(f"-{name}{value:g}" for name, value in timing_of(cell).items()))
+            + "".join(f"-{name}{value:g}" for name, value in timing_of(cell).items())
+            + (f"-{chooser(cell).replace(' ', '-')}" if timing_of(cell) and cell.timing != "fixed" else ""))
+
+
+def chooser(cell: EvalConfig) -> str:
+    """Who picks a timed cell's timing: a learned one by its file's stem."""
+    return cell.timing + (f" {Path(cell.timing_file).stem}" if cell.timing_file else "")
 
 
 def timing_of(cell: EvalConfig) -> dict:

@@ -61,6 +61,8 @@ class RoundSpec:
     """a timing attack's action delay, in steps (0: none)"""
     timing: str = "fixed"
     """who picks within the timing budget (:data:`aril_ros.timing.CHOOSERS`)"""
+    timing_file: str = ""
+    """``learned``'s timing adversary file"""
 
 
 @dataclass

@@ -49,6 +49,7 @@ class EvalConfig:
     drop: float = timing_arg("drop")
     action_delay: int = timing_arg("action_delay")
     timing: str = timing_arg("timing")
+    timing_file: str = timing_arg("timing_file")
 
 
 def evaluate(cfg: EvalConfig, progress=None) -> dict:
@@ -91,7 +92,7 @@ def evaluation_task(job: dict) -> dict:
     return evaluate(EvalConfig(**job))
 
 
-FILE_FIELDS = ("policy", "expert", "attack_file")
+FILE_FIELDS = ("policy", "expert", "attack_file", "timing_file")
 """The EvalConfig fields that may name a file."""
 
 

@@ -10,7 +10,8 @@ takes the calibrated one (:func:`aril_ros.registry.attack_budget`). Episode ``e`
 :func:`aril_ros.step.episode_rng`, like the in-process engine, so both give the same perturbations. A timing attack
 (:mod:`aril_ros.timing`): ``delay`` (steps) and ``drop`` (a share of the steps), clean and sensory, played here;
 ``action_delay`` (steps), in every mode, chosen here and applied by the simulator as ``attack/timing`` says; and
-``timing`` (``fixed`` or ``random``, drawn from :func:`aril_ros.step.timing_rng` as the engine does).
+``timing`` (``fixed``, ``random`` or ``learned``, drawn from :func:`aril_ros.step.timing_rng` as the engine does;
+``learned`` plays the timing adversary file ``timing_file``).
 
 The black-box attacks (spsa; aril_a when its adversary takes actions or searches) ask the policy node
 itself, whichever it is: their victim is a :class:`aril_ros_nodes.remote_policy.RemotePolicy` that
@@ -78,7 +79,8 @@ class AttackerNode(Node):
         self.seed = declared(self, "seed", 0)
         self.rng = None
         timing = TimingAttack(TimingBudget(declared(self, "delay", 0), declared(self, "drop", 0.0),
-                                           declared(self, "action_delay", 0)), declared(self, "timing", "fixed"))
+                                           declared(self, "action_delay", 0)), declared(self, "timing", "fixed"),
+                              declared(self, "timing_file", ""))
         self.timing = timing if timing.budget.any else None
         if self.mode == "physical" and (timing.budget.delay or timing.budget.drop):
             raise ValueError("delay and drop are played on the observation this node publishes, which in mode physical "

@@ -26,7 +26,8 @@ def collect_round(spec, log=_to_stderr) -> Path:
                       expert=spec.expert, attack_file=spec.attack_file, episodes=spec.episodes, seed=spec.seed,
                       record=str(spec.record), horizon=spec.horizon, domain=spec.domain, rescale=spec.rescale,
                       k=spec.k, samples=spec.samples, search=spec.search, delay=spec.delay, drop=spec.drop,
-                      action_delay=spec.action_delay, timing=spec.timing)
+                      action_delay=spec.action_delay, timing=spec.timing,
+                      timing_file=spec.timing_file)
     try:
         Orchestrator(cfg, log=log).run()
     except (ValueError, GraphError) as err:  # bad files or settings, or a node that died or stalled

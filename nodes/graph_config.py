@@ -73,6 +73,7 @@ class GraphConfig:
     action_delay: int = timing_arg("action_delay", "every mode, played by the simulator node as the attacker node's "
                                                    "attack/timing says")
     timing: str = timing_arg("timing")
+    timing_file: str = timing_arg("timing_file")
 
 
 ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
@@ -144,6 +145,7 @@ class GraphRun:
                          **({"victim": policy} if self.attack in WHITE_BOX else {}),
                          **({"delay": cfg.delay, "drop": float(cfg.drop), "action_delay": cfg.action_delay,
                              "timing": cfg.timing} if self.timing else {}),
+                         **({"timing_file": str(Path(cfg.timing_file).resolve())} if cfg.timing_file else {}),
                          **({"attack_file": str(self.adversary)} if self.adversary else {})},
             "expert": {"env": cfg.env, "expert": expert},
         }
@@ -166,6 +168,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
     if cfg.render:
         frame_size(cfg.render_size)
     timing = TimingAttack.of(cfg)
+    if timing.chooser == "learned":  # a missing file, or one of another budget or env, refused before any node starts
+        timing.timeline(1, layout_of(cfg.env).obs_dim, layout_of(cfg.env).act_dim, [])
     if (cfg.delay or cfg.drop) and cfg.mode == "physical":
         raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "
                          "which in mode physical the simulator publishes: give mode:=clean or sensory (the engine, "
@@ -187,7 +191,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                     probes=queries_victim(choice.name, adversary_net, cfg.search), layout=layout,
                     policy_meta=policy_meta, expert_meta=expert_meta, adversary=adversary,
                     files={"policy": file_record(policy), "expert": file_record(expert),
-                           "adversary": file_record(adversary)},
+                           "adversary": file_record(adversary),
+                           **({"timing_adversary": file_record(Path(cfg.timing_file))} if cfg.timing_file else {})},
                     timing=timing if timing.budget.any else None)
 
 

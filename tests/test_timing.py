@@ -1,24 +1,55 @@
 """Timing attacks on the engine (aril_ros.timing): budgets held, what the policy saw and what the simulator applied
-traceable to their steps, and an episode's timing its own."""
+traceable to their steps, and an episode's timing its own, whoever picks it (fixed, random, a learned timing
+adversary)."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from aril_ros.adversary import AdversaryConfig, train_adversary
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
+from aril_ros.policy import save_policy
 from aril_ros.rollout import RolloutEngine
 from aril_ros.step import DEFAULT_ACTION, episode_rng, may_drop, timing_rng
 from aril_ros.timing import TimingAttack, TimingBudget
+from tests.conftest import random_policy
 
 H = 80
 ENV = "Swimmer-v5"
+CHOOSERS = ["fixed", "random", "learned"]
+TRAINED: dict[tuple, Path] = {}
 
 
-def steps_of(make_policy, budget, chooser, mode="clean", n_envs=3, episodes=3, seed=7):
-    """Every step of ``episodes`` episodes under the timing attack, per episode: its StepBatch rows in order."""
+def timing_adversary(budget: TimingBudget, folder: Path, env_id: str = ENV, victim: Path | None = None,
+                     expert: Path | None = None, seed: int = 0) -> Path:
+    """A timing adversary of ``budget`` briefly trained (2048 steps) against ``victim`` (default: the random policy
+    of seed 1 that :func:`steps_of` attacks), labelled by ``expert`` (seed 2's); trained once per session."""
+    if victim is None:
+        victim, expert = (save_policy(random_policy(env_id, seed=s), folder / f"{env_id}-{s}.pt") for s in (1, 2))
+    key = (budget, env_id, str(victim), seed)
+    if key not in TRAINED:
+        TRAINED[key] = train_adversary(AdversaryConfig(
+            env=env_id, mode="clean", delay=budget.delay, drop=budget.drop, action_delay=budget.action_delay,
+            victim=str(victim), expert=str(expert), steps=2048, n_envs=4, rollout=128, minibatch=128, warmup=5,
+            seed=seed, out=str(folder / f"timing-{env_id}-{budget.delay}-{budget.drop}-{budget.action_delay}-{seed}.pt")),
+            log=lambda *a, **k: None)
+    return TRAINED[key]
+
+
+@pytest.fixture(scope="module")
+def trained_here(tmp_path_factory):
+    return tmp_path_factory.mktemp("timing-adversaries")
+
+
+def steps_of(make_policy, budget, chooser, mode="clean", n_envs=3, episodes=3, seed=7, folder=None):
+    """Every step of ``episodes`` episodes under the timing attack, per episode: its StepBatch rows in order
+    (``learned``: a timing adversary of the budget, trained into ``folder``)."""
     policy, expert = make_policy(ENV, seed=1), make_policy(ENV, seed=2)
     attack = make_attack("none" if mode == "clean" else "random", layout_of(ENV), 0.1)
+    file = str(timing_adversary(budget, folder)) if chooser == "learned" else ""
     engine = RolloutEngine(ENV, policy, expert, attack, mode, n_envs=n_envs, horizon=H,
-                           timing=TimingAttack(budget, chooser))
+                           timing=TimingAttack(budget, chooser, file))
     per_episode = {e: [] for e in range(episodes)}
     for step in engine.iter_steps(episodes, seed):
         for row, e in enumerate(step.episodes):
@@ -33,22 +64,23 @@ def steps_of(make_policy, budget, chooser, mode="clean", n_envs=3, episodes=3, s
     return per_episode
 
 
-@pytest.mark.parametrize("chooser", ["fixed", "random"])
-def test_the_policy_sees_an_observation_of_its_episode_no_older_than_the_delay(make_policy, chooser):
-    for steps in steps_of(make_policy, TimingBudget(delay=3), chooser).values():
+@pytest.mark.parametrize("chooser", CHOOSERS)
+def test_the_policy_sees_an_observation_of_its_episode_no_older_than_the_delay(make_policy, chooser, trained_here):
+    for steps in steps_of(make_policy, TimingBudget(delay=3), chooser, folder=trained_here).values():
         ages = [s["obs_age"] for s in steps]
         assert max(ages) <= 3 and all(age <= s["t"] for age, s in zip(ages, steps))
         for s in steps:  # clean: the observation of step t - age is that step's true one
             np.testing.assert_array_equal(s["obs"], steps[s["t"] - s["obs_age"]]["true_obs"])
         if chooser == "fixed":
             assert ages == [min(3, s["t"]) for s in steps]
-        else:
+        elif chooser == "random":
             assert set(ages[3:]) == {0, 1, 2, 3}
 
 
-@pytest.mark.parametrize("chooser", ["fixed", "random"])
-def test_drops_show_the_last_observation_again_and_never_exceed_their_share_of_any_prefix(make_policy, chooser):
-    for steps in steps_of(make_policy, TimingBudget(drop=0.2), chooser, mode="sensory").values():
+@pytest.mark.parametrize("chooser", CHOOSERS)
+def test_drops_show_the_last_observation_again_and_never_exceed_their_share_of_any_prefix(make_policy, chooser,
+                                                                                          trained_here):
+    for steps in steps_of(make_policy, TimingBudget(drop=0.2), chooser, mode="sensory", folder=trained_here).values():
         dropped = [bool(s["dropped"]) for s in steps]
         assert all(s["obs_age"] > 0 for s, d in zip(steps, dropped) if d)
         assert any(dropped)
@@ -68,10 +100,10 @@ def test_may_drop_counts_every_prefix():
     assert may_drop(np.array([0]), 2, share).tolist() == [False]  # 1 of 3 is over a quarter
 
 
-@pytest.mark.parametrize("chooser", ["fixed", "random"])
+@pytest.mark.parametrize("chooser", CHOOSERS)
 def test_the_simulator_applies_an_action_no_older_than_the_action_delay_and_rest_before_the_first(make_policy,
-                                                                                                  chooser):
-    for steps in steps_of(make_policy, TimingBudget(action_delay=2), chooser).values():
+                                                                                                  chooser, trained_here):
+    for steps in steps_of(make_policy, TimingBudget(action_delay=2), chooser, folder=trained_here).values():
         for s in steps:
             assert 0 <= s["action_age"] <= 2
             step = s["t"] - s["action_age"]
@@ -82,10 +114,11 @@ def test_the_simulator_applies_an_action_no_older_than_the_action_delay_and_rest
             assert [s["action_age"] for s in steps] == [2] * len(steps)
 
 
-def test_an_episodes_timing_is_its_own_whatever_runs_beside_it(make_policy):
+@pytest.mark.parametrize("chooser", ["random", "learned"])
+def test_an_episodes_timing_is_its_own_whatever_runs_beside_it(make_policy, chooser, trained_here):
     budget = TimingBudget(delay=2, drop=0.2, action_delay=1)
-    one = steps_of(make_policy, budget, "random", mode="sensory", n_envs=1)
-    many = steps_of(make_policy, budget, "random", mode="sensory", n_envs=3)
+    one = steps_of(make_policy, budget, chooser, mode="sensory", n_envs=1, folder=trained_here)
+    many = steps_of(make_policy, budget, chooser, mode="sensory", n_envs=3, folder=trained_here)
     for e in one:
         for a, b in zip(one[e], many[e], strict=True):
             for name in ("obs", "applied_action", "obs_age", "action_age", "delta", "reward"):
@@ -121,7 +154,8 @@ def test_budgets_are_checked():
     ("clean", "Swimmer-v5", ("delay:=1",)),
     ("sensory", "Swimmer-v5", ("drop:=0.3",)),
     ("physical", "HalfCheetah-v5", ("action_delay:=2", "timing:=random")),
-    ("clean", "Swimmer-v5", ("delay:=1", "action_delay:=1"))])
+    ("clean", "Swimmer-v5", ("delay:=1", "action_delay:=1")),
+    ("clean", "HalfCheetah-v5", ("delay:=2", "drop:=0.2", "action_delay:=1", "timing:=learned"))])
 def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, tmp_path):
     """The attacker node delivers what the engine shows the policy, and the simulator node applies the action the
     engine applies, bit for bit; the log says per step how old the observation was, whether it was dropped and how
@@ -133,16 +167,17 @@ def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, 
     policy, expert = policy_files(tmp_path, env_id)
     attack = "none" if mode == "clean" else "random"
     log = tmp_path / "run.mcap"
-    summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
-                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
-                                   f"record:={log}", *timing))
     settings = dict(arg.split(":=") for arg in timing)
     budget = TimingBudget(int(settings.get("delay", 0)), float(settings.get("drop", 0)),
                           int(settings.get("action_delay", 0)))
     chooser = settings.get("timing", "fixed")
+    file = str(timing_adversary(budget, tmp_path, env_id, policy, expert)) if chooser == "learned" else ""
+    summary = summary_of(run_graph(f"mode:={mode}", f"env:={env_id}", f"policy:={policy}", f"expert:={expert}",
+                                   f"attack:={attack}", "eps:=0.1", "episodes:=2", "horizon:=80", "seed:=4",
+                                   f"record:={log}", *timing, *([f"timing_file:={file}"] if file else [])))
     victim = load_policy(policy)
     engine = RolloutEngine(env_id, victim, load_policy(expert), make_attack(attack, layout_of(env_id), 0.1), mode,
-                           n_envs=2, horizon=80, timing=TimingAttack(budget, chooser))
+                           n_envs=2, horizon=80, timing=TimingAttack(budget, chooser, file))
     traj = engine.rollout(2, seed=4)
     run = read_run(log)
     assert_same_steps(run, traj)
@@ -152,7 +187,7 @@ def test_a_timing_attack_through_the_graph_is_the_engines(mode, env_id, timing, 
     assert summary["mean_return"] == pytest.approx(traj.returns.mean(), abs=1e-3)
     assert summary["mean_expert_loss"] == pytest.approx(traj.mean_expert_loss, abs=1e-6)  # the applied action's
     assert summary["timing"] == {"delay": budget.delay, "drop": budget.drop, "action_delay": budget.action_delay,
-                                 "chooser": chooser}
+                                 "chooser": chooser, **({"file": file} if file else {})}
     assert run.metadata["timing"] == summary["timing"]
 
 

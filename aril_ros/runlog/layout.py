@@ -36,7 +36,7 @@ RUN = "aril_run"
 """The metadata record written first: what the run was (its values JSON-encoded)."""
 TIMING_KEY = "timing"
 """The key of :data:`RUN` a run with a timing attack has: its budget and chooser (``delay``, ``drop``,
-``action_delay``, ``chooser``); its steps then have ``attack/timing`` too (:func:`aril_ros.protocol.step_topics`)."""
+``action_delay``, ``chooser``, a learned one's ``file``); its steps then have ``attack/timing`` too (:func:`aril_ros.protocol.step_topics`)."""
 END = "aril_run_end"
 """The metadata record written last: how the run ended."""
 
