@@ -170,15 +170,28 @@ def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mo
     if not adversary.exists():
         return False
     made = load_adversary(adversary)
-    if made.eps != eps:
+    return made.eps == eps and made_against(made.meta["provenance"], victim, env, mode)
+
+
+def timing_trained_for(adversary: Path, budget: dict, victim: str, env: str) -> bool:
+    """Whether the timing adversary ``adversary`` exists, was trained for ``budget`` (a TimingBudget's fields) and
+    against ``victim`` as it is now (as :func:`trained_for`)."""
+    if not adversary.exists():
         return False
+    made = load_timing_adversary(adversary)
+    return made.budget == budget and made_against(made.meta["provenance"], victim, env, "clean")
+
+
+def made_against(provenance: dict, victim: str, env: str, mode: str | None) -> bool:
+    """Whether an adversary of ``provenance`` was trained against ``victim`` (a bundled name or a file) as it is now:
+    the victim file's sha256 at training time is kept; no ``victim`` or a live one: nothing to compare."""
     if not victim or victim in plugins.names("aril_ros.victims"):
         return True
-    made_against, file = made.meta["provenance"], policy_file(victim, env, mode)
-    if "victim_sha256" in made_against:
-        return made_against["victim_sha256"] == digest_of(file.read_bytes())
+    file = policy_file(victim, env, mode)
+    if "victim_sha256" in provenance:
+        return provenance["victim_sha256"] == digest_of(file.read_bytes())
     # adversaries made before the digest was kept: the victim's provenance (its command and creation time)
-    return made_against.get("victim_provenance") == load_policy(file, env).meta.provenance
+    return provenance.get("victim_provenance") == load_policy(file, env).meta.provenance
 
 
 def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
@@ -198,12 +211,20 @@ def ready_adversaries(wanted: list[AdversaryConfig], retrain: bool, log, workers
     other in this process, logging to ``log``). Their victim, expert and init files travel with them, and a task
     records a file by the path it saw: a relative path or a bundled name reads the same on every node, and a file
     inside the checkout is shown to it by its checkout-relative path (:func:`sweep.run_tasks`)."""
-    todo = [cfg for cfg in wanted if retrain or not trained_for(Path(cfg.out), cfg.eps, cfg.victim, cfg.env, cfg.mode)]
+    todo = [cfg for cfg in wanted if retrain or not ready(cfg)]
     here = workers == 1 and not address
     calls = [(_with_files_marked(cfg), log if here else None) for cfg in todo]
     for _ in run_tasks(training_task, calls, workers, address, label="adversary trainings", log=log):
         pass
     return [Path(cfg.out) for cfg in wanted]
+
+
+def ready(cfg: AdversaryConfig) -> bool:
+    """Whether ``cfg``'s adversary file is there, trained as ``cfg`` asks (:func:`trained_for`,
+    :func:`timing_trained_for`)."""
+    if timed(cfg):
+        return timing_trained_for(Path(cfg.out), asdict(timing_budget(cfg)), cfg.victim, cfg.env)
+    return trained_for(Path(cfg.out), cfg.eps, cfg.victim, cfg.env, cfg.mode)
 
 
 def _with_files_marked(cfg: AdversaryConfig) -> dict:

@@ -6,6 +6,7 @@ the paper's objective on the same episodes. The settings are :class:`~aril_ros.l
 """
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ from .attacks import make_attack
 from .learner_config import LearnerConfig
 from .learner_run import LearnerRun
 from .step import disagreement
+from .timing_adversary import load_timing_adversary
 
 
 @dataclass
@@ -32,39 +34,73 @@ class RoundAdversary:
     """the adversary file, for ``aril_a``"""
     cpu_seconds: float = 0.0
     """the training time of every candidate it was chosen from (the round's compute, not its wall time)"""
+    timing_file: str = ""
+    """under a timing budget, ARIL's timing adversary trained against pi_t (its f_t in time)"""
 
 
 def train_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> RoundAdversary:
     """Round ``r``'s attack and adversary file: for ARIL, f_r trained against pi_r (warm-started from f_{r-1} if
     asked); with ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates;
     0 when no episode finished) is largest, copied from ``adversary-<r>-seed<k>.pt``; with ``round_attacks`` the
-    strongest on pi_r of the candidates and those attacks (:func:`strongest_on`). Else the run's attack, no file."""
-    if r == 0 or run.attack != "aril_a":
+    strongest on pi_r of the candidates and those attacks (:func:`strongest_on`). Else the run's attack, no file.
+    Under a timing budget ARIL's f_r is timed too: a timing adversary trained against pi_r the same way (beside a
+    value adversary, each trained against pi_r alone: the two together play the joint budget)."""
+    if r == 0:
         return RoundAdversary(run.attack)
-    out, candidates = run.dir / f"adversary-{r}.pt", round_candidates(cfg, run, r)
-    init = str(run.dir / f"adversary-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
-    wanted = [AdversaryConfig(env=cfg.env, mode=run.mode, eps=cfg.eps, victim=str(run.policy_file(r)),
-                              expert=cfg.expert, steps=cfg.adversary_steps, seed=seeds.round_adversary(cfg.seed, r, k),
-                              init=init, out=str(file)) for k, file in enumerate(candidates)]
+    made = value_round_adversary(cfg, run, r, log) if run.attack == "aril_a" else RoundAdversary(run.attack)
+    if cfg.algorithm == "aril" and run.timing.any:
+        timing_file, seconds = trained_candidate(cfg, run, r, "timing-adversary", log)
+        made = dataclasses.replace(made, timing_file=str(timing_file), cpu_seconds=made.cpu_seconds + seconds)
+    return made
+
+
+def value_round_adversary(cfg: LearnerConfig, run: LearnerRun, r: int, log) -> RoundAdversary:
+    """ARIL's f_r in value: the strongest trained candidate, or with ``round_attacks`` the strongest on pi_r of the
+    candidates and those attacks."""
+    if not cfg.round_attacks:
+        file, seconds = trained_candidate(cfg, run, r, "adversary", log)
+        return RoundAdversary("aril_a", str(file), seconds)
+    candidates = round_candidates(cfg, run, r, "adversary")
+    seconds = train_candidates(cfg, run, r, "adversary", candidates, log)
+    attack, file = strongest_on(cfg, run, r, [("aril_a", str(f)) for f in candidates]
+                                + [(name, "") for name in comma_list(cfg.round_attacks)], log)
+    if file:
+        shutil.copyfile(file, run.dir / f"adversary-{r}.pt")
+        file = str(run.dir / f"adversary-{r}.pt")
+    return RoundAdversary(attack, file, seconds)
+
+
+def trained_candidate(cfg: LearnerConfig, run: LearnerRun, r: int, kind: str, log) -> tuple[Path, float]:
+    """The ``kind`` (``adversary`` or ``timing-adversary``) file of round ``r``, ``<kind>-<r>.pt``: with
+    ``adversary_seeds`` > 1 the candidate whose objective (the mean episode loss of its last updates; 0 when no
+    episode finished) is largest; and the seconds every candidate's training took."""
+    out, candidates = run.dir / f"{kind}-{r}.pt", round_candidates(cfg, run, r, kind)
+    seconds = train_candidates(cfg, run, r, kind, candidates, log)
+    if len(candidates) > 1:
+        objectives = [provenance_of(file, kind)["final_episode_loss"] or 0.0 for file in candidates]
+        best = int(np.argmax(objectives))
+        log(f"[train-learner {run.name}] round {r}: {'f' if kind == 'adversary' else 'timing f'}_{r} is candidate "
+            f"{best} of {len(candidates)} (objectives " + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
+        shutil.copyfile(candidates[best], out)
+    return out, seconds
+
+
+def train_candidates(cfg: LearnerConfig, run: LearnerRun, r: int, kind: str, candidates: list[Path], log) -> float:
+    """Train (or keep, when an interruption left them finished) the ``candidates`` of round ``r`` against pi_r, each
+    with its seed (warm-started from the previous round's with ``warm_start``); the seconds their trainings took."""
+    init = str(run.dir / f"{kind}-{r - 1}.pt") if cfg.warm_start and r > 1 else ""
+    timing = dataclasses.asdict(run.timing) if kind == "timing-adversary" else {}
+    wanted = [AdversaryConfig(env=cfg.env, mode="clean" if timing else run.mode, eps=cfg.eps, **timing,
+                              victim=str(run.policy_file(r)), expert=cfg.expert, steps=cfg.adversary_steps,
+                              seed=seeds.round_adversary(cfg.seed, r, k), init=init, out=str(file))
+               for k, file in enumerate(candidates)]
     # one finished before an interruption is kept: the same seed against the same pi_r gives the same file
     ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
-    made = {file: load_adversary(file).meta["provenance"] for file in candidates}
-    cpu_seconds = sum(provenance["train_seconds"] for provenance in made.values())
-    if cfg.round_attacks:
-        attack, file = strongest_on(cfg, run, r, [("aril_a", str(f)) for f in candidates]
-                                    + [(name, "") for name in comma_list(cfg.round_attacks)], log)
-        if not file:
-            return RoundAdversary(attack, "", cpu_seconds)
-        candidates = [Path(file)]
-    if len(candidates) > 1:
-        objectives = [made[file]["final_episode_loss"] or 0.0 for file in candidates]
-        best = int(np.argmax(objectives))
-        log(f"[train-learner {run.name}] round {r}: f_{r} is candidate {best} of {len(candidates)} (objectives "
-            + ", ".join(f"{o:.1f}" for o in objectives) + ")", flush=True)
-        candidates = [candidates[best]]
-    if candidates[0] != out:
-        shutil.copyfile(candidates[0], out)
-    return RoundAdversary("aril_a", str(out), cpu_seconds)
+    return sum(provenance_of(file, kind)["train_seconds"] for file in candidates)
+
+
+def provenance_of(file: Path, kind: str) -> dict:
+    return (load_adversary(file) if kind == "adversary" else load_timing_adversary(file)).meta["provenance"]
 
 
 def strongest_on(cfg: LearnerConfig, run: LearnerRun, r: int, options: list[tuple[str, str]], log
@@ -85,8 +121,8 @@ def strongest_on(cfg: LearnerConfig, run: LearnerRun, r: int, options: list[tupl
     return options[best]
 
 
-def round_candidates(cfg: LearnerConfig, run: LearnerRun, r: int) -> list[Path]:
-    """The files of round ``r``'s trained adversaries: f_r itself, or the candidates it is chosen from."""
-    if cfg.adversary_seeds == 1 and not cfg.round_attacks:
-        return [run.dir / f"adversary-{r}.pt"]
-    return [run.dir / f"adversary-{r}-seed{k}.pt" for k in range(cfg.adversary_seeds)]
+def round_candidates(cfg: LearnerConfig, run: LearnerRun, r: int, kind: str) -> list[Path]:
+    """The files of round ``r``'s trained ``kind`` adversaries: f_r itself, or the candidates it is chosen from."""
+    if cfg.adversary_seeds == 1 and not (cfg.round_attacks and kind == "adversary"):
+        return [run.dir / f"{kind}-{r}.pt"]
+    return [run.dir / f"{kind}-{r}-seed{k}.pt" for k in range(cfg.adversary_seeds)]

@@ -15,6 +15,7 @@ with the run's collector (:mod:`aril_ros.collectors`), fit the next learner, and
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -43,7 +44,7 @@ def train_learner(cfg: LearnerConfig, log=print, collector: Collector | None = N
         if r < cfg.rounds:
             record.update(run.fit_next(r, part))
         record["seconds"] = round(time.time() - started, 1)
-        if r > 0 and run.attack == "aril_a":
+        if r > 0 and (run.attack == "aril_a" or adversary.timing_file):
             record.update(adversary_seconds=round(adversary_seconds, 1), adversary_cpu_seconds=adversary.cpu_seconds)
         run.finish_round(record)
         log(run.round_line(record), flush=True)
@@ -56,16 +57,19 @@ def collect(collector: Collector, cfg: LearnerConfig, run: LearnerRun, r: int, a
     attack (its run is also its evaluation; dr and aril judge it clean too); the round's record and its (observation
     seen, expert action) pairs."""
     attack = adversary.attack if r > 0 else "none"
+    timed = r > 0 and run.timing.any
     spec = RoundSpec(env=cfg.env, mode=run.mode if r > 0 else "clean", attack=attack,
                      eps=cfg.eps if attack != "none" else 0.0, policy=cfg.expert if r == 0 else str(run.policy_file(r)),
                      expert=cfg.expert, attack_file=adversary.file, episodes=cfg.episodes,
-                     seed=seeds.collection(cfg.seed, r), record=run.dir / f"round-{r}.mcap")
+                     seed=seeds.collection(cfg.seed, r), record=run.dir / f"round-{r}.mcap",
+                     **({"delay": run.timing.delay, "drop": run.timing.drop, "action_delay": run.timing.action_delay,
+                         "timing": run.timing_chooser, "timing_file": adversary.timing_file} if timed else {}))
     learner = run.learner(r)
     collected = collector(run, r, learner, spec)
     record = {"round": r, **({"attack": attack} if attack != run.attack and r > 0 else {}), **collected.figures,
               "return": float(collected.returns.mean()), "return_std": float(collected.returns.std()),
               "expert_loss": collected.expert_loss}
-    if r > 0 and attack != "none":
+    if r > 0 and (attack != "none" or timed):
         clean = run.rollout(learner, None, "clean", cfg.eval_episodes, seeds.LEARNER_EVAL)
         record["clean_return"] = float(clean.returns.mean())
     return record, collected.data
@@ -75,7 +79,10 @@ def select_best(cfg: LearnerConfig, run: LearnerRun, log) -> Path:
     """The theorem (like DAgger's) bounds the best of the learners pi_1..pi_R, each judged here by its
     own round: its return under the attack of that round (for ARIL, the adversary trained against it)."""
     best = max(run.rounds[1:], key=lambda rec: rec["return"])
+    timing = (f", timed by {run.timing_chooser} within " + ", ".join(
+        f"{k.replace('_', ' ')} {v:g}" for k, v in dataclasses.asdict(run.timing).items() if v)) if run.timing.any else ""
     out = run.save_selected(best["round"], "the learner with the best return in its own round"
-                            + (f" ({run.mode}, {run.attack} eps {cfg.eps})" if run.attack != "none" else " (clean)"))
+                            + (f" ({run.mode}, {run.attack} eps {cfg.eps}{timing})" if run.attack != "none"
+                               else f" (clean{timing})"))
     log(json.dumps({"out": str(out), "selected": f"pi_{best['round']}", "return": round(best["return"], 1)}))
     return out

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from . import seeds
 from .args import arg, comma_list
 from .registry import ATTACKED_MODES, DEFAULT_ENV, MAX_EPS, calibrated_eps
+from .timing import TimingBudget, timing_arg
 
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 ROUND_ATTACKS = ("spsa", "random")
@@ -30,11 +31,16 @@ class ImitationConfig:
                                    "against each learner (the paper's Algorithm 1)")
     env: str = arg(DEFAULT_ENV, "gymnasium MuJoCo env id")
     expert: str = arg("expert", "the expert that labels the true states: a bundled name or a policy file")
-    mode: str = arg("sensory", "dr and aril: sensory or physical perturbations (dagger and dart collect clean)")
+    mode: str = arg("sensory", "dr and aril: sensory or physical perturbations, or clean with a timing budget "
+                               "(timing alone; dagger and dart collect clean)")
     eps: float = arg(0.0, "dr and aril: the budget (0: the calibrated eps for env and mode, bundled with aril_ros)",
                      low=0.0, high=MAX_EPS)
     rounds: int = arg(10, "rounds of collecting and refitting after round 0 (expert demonstrations)", low=0, high=1000)
     episodes: int = arg(5, "episodes collected per round (1000 steps each)", low=1, high=100_000)
+    delay: int = timing_arg("delay", "dr and aril, in the loop: dr's rounds draw it at random, aril's are timed by a "
+                                     "timing adversary trained against each learner")
+    drop: float = timing_arg("drop", "dr and aril, in the loop")
+    action_delay: int = timing_arg("action_delay", "dr and aril, in the loop")
 
 
 @dataclass
@@ -85,13 +91,23 @@ class LearnerConfig(RoundAdversaryConfig, FitConfig, ImitationConfig):
                                    "loaded back); the same seeds give the same data set")
 
 
+def timing_in_loop(cfg: LearnerConfig) -> TimingBudget:
+    """The timing budget played in the loop's rounds (none: all zero)."""
+    return TimingBudget(cfg.delay, cfg.drop, cfg.action_delay)
+
+
 def checked(cfg: LearnerConfig) -> LearnerConfig:
     """``cfg`` with its eps filled in from the calibration when unset; a ValueError for what cannot run."""
     if cfg.algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {cfg.algorithm!r}; choose one of {', '.join(ALGORITHMS)}")
-    if ALGORITHMS[cfg.algorithm] != "none":
+    timed = timing_in_loop(cfg).any  # and a budget out of range refused
+    if ALGORITHMS[cfg.algorithm] == "none" and timed:
+        raise ValueError(f"a timing budget (delay:=, drop:=, action_delay:=) is played in dr's and aril's loops; "
+                         f"{cfg.algorithm} collects clean")
+    if ALGORITHMS[cfg.algorithm] != "none" and not (cfg.mode == "clean" and timed):
         if cfg.mode not in ATTACKED_MODES:
-            raise ValueError(f"{cfg.algorithm} needs mode:=sensory or mode:=physical, got {cfg.mode!r}")
+            raise ValueError(f"{cfg.algorithm} needs mode:=sensory or mode:=physical (or clean with a timing budget), "
+                             f"got {cfg.mode!r}")
         if cfg.eps == 0:
             cfg = dataclasses.replace(cfg, eps=calibrated_eps(cfg.env, cfg.mode))
         if not cfg.eps > 0:

@@ -9,6 +9,8 @@ the last finished round::
                                 made a query attack f_r: the round's record in state.json names it, "attack")
     <run_dir>/adversary-<r>-seed<k>.pt  ARIL with adversary_seeds:=N > 1 or round_attacks:=: the trained
                                 candidates f_r was chosen from
+    <run_dir>/timing-adversary-<r>.pt  ARIL with a timing budget: the timing adversary trained against pi_r
+                                (-seed<k>: its candidates, as the value adversary's)
     <run_dir>/round-<r>.mcap    source:=graph only: the round's run log
 """
 from __future__ import annotations
@@ -24,7 +26,7 @@ from . import seeds
 from .dataset import DaggerDataset
 from .envs import layout_of
 from .files import write_atomically
-from .learner_config import ALGORITHMS, LearnerConfig
+from .learner_config import ALGORITHMS, LearnerConfig, timing_in_loop
 from .learners import fit_policy
 from .policy import load_policy, resolve_policy, save_policy
 from .provenance import now, stamp
@@ -42,9 +44,13 @@ class LearnerRun:
 
     def __init__(self, cfg: LearnerConfig, log):
         self.cfg = cfg
-        self.attack = ALGORITHMS[cfg.algorithm]
+        self.timing = timing_in_loop(cfg)
+        self.attack = ALGORITHMS[cfg.algorithm] if cfg.mode != "clean" else "none"
         self.mode = cfg.mode if self.attack != "none" else "clean"
-        self.name = f"{cfg.algorithm}-{cfg.env}" + (f"-{cfg.mode}" if self.attack != "none" else "")
+        self.name = (f"{cfg.algorithm}-{cfg.env}" + (f"-{cfg.mode}" if self.attack != "none" else "")
+                     + "".join(f"-{k.replace('_', '')}{v:g}" for k, v in dataclasses.asdict(self.timing).items() if v))
+        self.timing_chooser = "learned" if cfg.algorithm == "aril" else "random"
+        """who times the rounds under a timing budget: dr at random, aril a timing adversary trained against pi_r"""
         self.dir = Path(cfg.run_dir or f"runs/{self.name}")
         self.dir.mkdir(parents=True, exist_ok=True)
         self.state_path, self.data_path = self.dir / "state.json", self.dir / "data.npz"
@@ -92,7 +98,9 @@ class LearnerRun:
         provenance = {"algorithm": cfg.algorithm, "round": r + 1, "samples": len(self.data),
                       **stamp("aril train-learner", cfg), "expert": cfg.expert,
                       "expert_provenance": self.expert.meta.provenance, "mode": self.mode, "attack": self.attack,
-                      "eps": cfg.eps if self.attack != "none" else 0.0, "seed": cfg.seed}
+                      "eps": cfg.eps if self.attack != "none" else 0.0, "seed": cfg.seed,
+                      **({"timing": {**dataclasses.asdict(self.timing), "chooser": self.timing_chooser}}
+                         if self.timing.any else {})}
         policy = fit_policy(self.data, cfg.env, cfg.hidden, cfg.epochs, cfg.lr, cfg.batch,
                             seeds.round_weights(cfg.seed, r), provenance)
         save_policy(policy, self.policy_file(r + 1))
@@ -114,7 +122,8 @@ class LearnerRun:
         """A finished round as the log shows it."""
         r = record["round"]
         attack = record.get("attack", self.attack)
-        who = "expert" if r == 0 else f"pi_{r}" + (f" {self.mode}/{attack}" if attack != "none" else "")
+        who = "expert" if r == 0 else (f"pi_{r}" + (f" {self.mode}/{attack}" if attack != "none" else "")
+                                       + (f" timed ({self.timing_chooser})" if self.timing.any else ""))
         return (f"[train-learner {self.name}] round {r}: {who} return {record['return']:8.1f} ± "
                 f"{record['return_std']:6.1f}"
                 + (f" (clean {record['clean_return']:.1f})" if "clean_return" in record else "")

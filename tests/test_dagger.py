@@ -270,3 +270,54 @@ def test_the_bundled_learners_commands_name_their_arguments_in_the_configs_order
         keys = [word.split(":=")[0] for word in words]
         assert keys == sorted(keys, key=order.index), file
         assert parse_args(LearnerConfig, words) == settings_of(provenance, LearnerConfig), file
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algorithm, mode", [("dr", "clean"), ("aril", "clean"), ("aril", "sensory")])
+def test_a_timing_budget_in_the_loop_times_each_round_as_its_algorithm_says(tmp_path, algorithm, mode):
+    """dr's rounds are timed at random, aril's by a timing adversary trained against the round's learner (beside its
+    value adversary in mode sensory: the joint budget); each round's pairs are what the learner saw under that timing
+    (replayed on the engine from the files the round used), labelled on the true state."""
+    from aril_ros import seeds
+    from aril_ros.attacks import make_attack
+    from aril_ros.envs import layout_of
+    from aril_ros.policy import resolve_policy
+    from aril_ros.rollout import RolloutEngine
+    from aril_ros.sweep import digest_of
+    from aril_ros.timing import TimingAttack, TimingBudget
+    from aril_ros.timing_adversary import load_timing_adversary
+
+    cfg = small(tmp_path, algorithm=algorithm, mode=mode, eps=0.05, delay=2, drop=0.2, adversary_steps=2048)
+    out = train_learner(cfg, log=quiet)
+    run = tmp_path / "run"
+    timing_file = run / "timing-adversary-1.pt"
+    assert timing_file.exists() == (algorithm == "aril")
+    if algorithm == "aril":  # trained against pi_1 for the run's budget
+        made = load_timing_adversary(timing_file)
+        assert made.budget == {"delay": 2, "drop": 0.2, "action_delay": 0}
+        assert made.meta["provenance"]["victim_sha256"] == digest_of((run / "pi-1.pt").read_bytes())
+    assert (run / "adversary-1.pt").exists() == (algorithm == "aril" and mode == "sensory")
+    chooser = "learned" if algorithm == "aril" else "random"
+    attack = {"clean": "none", "sensory": "aril_a" if algorithm == "aril" else "random"}[mode]
+    layout = layout_of("Swimmer-v5")
+    learner, expert = load_policy(run / "pi-1.pt"), resolve_policy("expert", "Swimmer-v5")
+    engine = RolloutEngine("Swimmer-v5", learner, expert,
+                           make_attack(attack, layout, 0.05, victim=learner, expert=expert,
+                                       adversary=str(run / "adversary-1.pt") if attack == "aril_a" else None,
+                                       mode=mode),
+                           mode, n_envs=1, timing=TimingAttack(TimingBudget(2, 0.2), chooser,
+                                                               str(timing_file) if chooser == "learned" else ""))
+    traj = engine.rollout(1, seeds.collection(0, 1))
+    engine.close()
+    assert traj.timing[0, :, 0].max() >= 1 and traj.timing[0, :, 1].sum() >= 1  # late and dropped observations
+    with np.load(run / "data.npz") as data:
+        np.testing.assert_array_equal(data["obs"][data["round"] == 1], traj.obs[0, : traj.length[0]])
+        np.testing.assert_array_equal(data["expert_action"][data["round"] == 1],
+                                      traj.expert_action[0, : traj.length[0]])
+    provenance = load_policy(out).meta.provenance
+    assert provenance["timing"] == {"delay": 2, "drop": 0.2, "action_delay": 0, "chooser": chooser}
+    assert f"timed by {chooser} within delay 2, drop 0.2" in provenance["selection"]
+    state = json.loads((run / "state.json").read_text())
+    assert "clean_return" in state["rounds"][1]
+    with pytest.raises(ValueError, match="a timing budget .* is played in dr's and aril's loops; dagger collects clean"):
+        train_learner(small(tmp_path / "x", delay=1), log=quiet)
