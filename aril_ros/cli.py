@@ -32,6 +32,7 @@ from .report import ReportConfig, build_report
 from .runlog import RunLogError, recover
 from .scan import ScanConfig, scan_adversary
 from .scorecard import ScorecardConfig, scorecard
+from .timing_table import TimingTableConfig, timing_table
 from .verdict import FitSurrogateConfig, fit_surrogate_command
 
 
@@ -89,6 +90,9 @@ COMMANDS = {
                             "search); writes results/."),
     "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
                              "strongest attack against it; writes results/."),
+    "timing-table": Command(TimingTableConfig, timing_table, "Each defense under its worst timing attack (late or "
+                            "dropped observations, late actions; fixed, random and learned) over its training "
+                            "seeds; writes results/timing.{json,md}."),
     "report": Command(ReportConfig, build_report,
                       "Regenerate docs/results.md: tables beside the paper's, eps sweeps, ARIL's rounds, performance."),
     "onboard": Command(OnboardConfig, onboard, "A new robot in one command: expert, DAgger learner and eps for a MuJoCo "
