@@ -10,9 +10,10 @@ a 95% interval over them (:func:`aril_ros.report.stats.summarise`); the table wr
 clean, then every budget. Beside it, per budget with a learned chooser, the three choosers side by side: what
 learning *when* to be late buys over random latency of the same budget.
 
-Every cell is kept in ``<out>.json`` with its per-episode returns, settings and the CPU it ran on; a rerun keeps the
-cells it finds with the same settings (a run stopped between envs, or on another machine, resumes: commit
-``<out>.json`` and the adversaries as they come). The timing adversaries go to ``adversary_dir``, one per (env,
+Every cell is kept in ``<out>.json`` with its per-episode returns and settings, the CPU it ran on among them; a rerun
+keeps the cells it finds with the same settings (a run stopped, or a fresh clone on the same CPU model, resumes:
+commit ``<out>.json`` and the adversaries as they come; on another CPU model every cell runs again, since the same
+files give other episodes there, and the trained adversaries are kept). The timing adversaries go to ``adversary_dir``, one per (env,
 defense, seed, budget), reused when trained for the same budget against the same policy file.
 """
 from __future__ import annotations
@@ -154,9 +155,10 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
                             timing_file=str(adversary or ""))
                 for name, job in cells.items():
                     key = f"{env}|{label}|{s}|{name}"
+                    # the CPU too: torch's kernels differ between CPU models, and so do the episodes of one file
                     settings = {"policy_sha256": digest, "episodes": cfg.episodes, "seed": cfg.seed,
-                                "horizon": cfg.horizon, **({"learned_steps": cfg.learned_steps}
-                                                           if name.endswith("learned") else {})}
+                                "horizon": cfg.horizon, "cpu": cpu(),
+                                **({"learned_steps": cfg.learned_steps} if name.endswith("learned") else {})}
                     if kept.get(key, {}).get("settings") != settings:
                         jobs[key] = (job, settings)
     log(f"[timing-table] {len(jobs)} cells to run ({len(kept)} kept), {len(wanted)} timing adversaries wanted",
@@ -166,7 +168,7 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
         results = evaluate_all([asdict(job) for job, _ in jobs.values()], cfg.workers, cfg.address, log,
                                label="timing-table cells")
     cells = {**kept, **{key: {"returns": result["returns"], "mean_return": result["mean_return"],
-                              "settings": settings, "cpu": cpu(), "policy": portable(job.policy),
+                              "settings": settings, "policy": portable(job.policy),
                               **({"timing_file": portable(job.timing_file)} if job.timing_file else {})}
                         for (key, (job, settings)), result in zip(jobs.items(), results)}}
     payload = {"cells": dict(sorted(cells.items())), **made,
