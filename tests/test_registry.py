@@ -98,7 +98,7 @@ def test_no_bundled_file_or_committed_figure_names_a_machines_path():
     from aril_ros.provenance import CHECKOUT
 
     absolute = re.compile(r"""(?:^|[\s="'])(/\w[^\s"']*)""")
-    for path in sorted(registry.DATA_DIR.glob("*/*.pt")):
+    for path in sorted([*registry.DATA_DIR.glob("*/*.pt"), *CHECKOUT.glob("results/**/*.pt")]):
         meta = torch.load(path, map_location="cpu", weights_only=True)["meta"]  # policies and adversaries alike
         assert not absolute.findall(meta), path.relative_to(CHECKOUT)
     for path in [*CHECKOUT.glob("results/**/*.json"), *CHECKOUT.glob("docs/results/*.json")]:
