@@ -91,7 +91,8 @@ from .report.plots import plot_scorecard_sweep
 from .report.stats import paired_drop, worst_attack
 from .report.text import scorecard_markdown
 from .sweep import session
-from .timing import TIMING_ROWS
+from .timing import LEARNED_TIMING_ROW, TIMING_ROWS
+from .adversary import AdversaryConfig, ready_adversaries
 from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
 
 
@@ -118,7 +119,10 @@ class Budget:
     timing: tuple[str, ...] = ()
     """the timing rows it scores (:data:`aril_ros.timing.TIMING_ROWS`), the policy otherwise clean: the quick budget
     the delay alone (an external node's quick verdict stays within minutes: each row is a graph run), the full one
-    all three"""
+    every one"""
+    timing_adversary_steps: int = 0
+    """the learned timing row's PPO steps: its adversary trains against the file (an external node: against the
+    pipeline's surrogate, at the engine's speed)"""
 
     @property
     def spsa_queries(self) -> int:
@@ -169,7 +173,7 @@ BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations
                            scales="1", refines=1, black_box=QUICK_ROWS, timing=("delay",)),
            "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
                           fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3, black_box=FULL_ROWS,
-                          timing=tuple(TIMING_ROWS))}
+                          timing=tuple(TIMING_ROWS), timing_adversary_steps=500_000)}
 VIAS = ("engine", "graph")
 
 
@@ -208,7 +212,10 @@ class ScorecardConfig:
     horizon: int = arg(HORIZON, "steps per episode", low=1, high=1_000_000)
     timing: int = arg(1, "the timing rows' budget k (0: no timing rows): the policy, clean otherwise, with every "
                          "observation k steps late (both budgets), every action k steps late and k tenths of its "
-                         "observations dropped (full)", low=0, high=9)
+                         "observations dropped, whenever allowed and when a learned timing adversary picks (full)",
+                      low=0, high=9)
+    timing_steps: int = arg(0, "the learned timing row's adversary's training steps instead of the budget's (0: the "
+                               "budget's)", low=0, high=10**9)
     workers: int = arg(2, "CPUs of the local Ray that a policy file's or bundled name's cells, and the black-box "
                           "pipeline's ARIL-A trainings, run on as tasks (1: one after the other in this process); an "
                           "external node's cells run one after the other", low=1, high=1024)
@@ -234,10 +241,16 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
         cleans = runner.run([cell(cfg, budget, "clean", "none", 0.0, policy=policy) for policy in tested], log,
                             "scorecard clean cell" + ("s" if len(tested) > 1 else ""))
         clean = dict(zip(tested, cleans))
-        timed = [(policy, row) for policy in tested for row in (budget.timing if cfg.timing else ())]
+        timed = [(policy, row) for policy in tested for row in (budget.timing if cfg.timing else ())
+                 if row != LEARNED_TIMING_ROW]
         late = runner.run([timing_cell(cfg, budget, policy, row) for policy, row in timed], log,
                           "scorecard timing cells") if timed else []
         made = pipelines_for(cfg, modes, eps, budget, out, log) if set(attacks) & set(PIPELINE_ATTACKS) else {}
+        if cfg.timing and LEARNED_TIMING_ROW in budget.timing:
+            learned = timing_adversaries(cfg, budget, tested, made, out, log)
+            late += runner.run([timing_cell(cfg, budget, policy, LEARNED_TIMING_ROW, file)
+                                for policy, file in learned.items()], log, "scorecard learned timing cells")
+            timed += [(policy, LEARNED_TIMING_ROW) for policy in learned]
         rows = {mode: rows_of(cfg, budget, attacks, mode, made.get(mode)) for mode in modes}
         # on the engine every row's sweep at once; through the graph each cell is a run, so every row at eps (the
         # verdict), then the sweep of each mode's worst row alone
@@ -308,7 +321,8 @@ def check_config(cfg: ScorecardConfig) -> tuple[Budget, list[str], list[str], li
     """The budget, modes, attacks and scales, or an error naming the bad argument, before anything runs."""
     chosen = BUDGETS[check_name("budget", cfg.budget, tuple(BUDGETS))]
     budget = dataclasses.replace(chosen, episodes=cfg.episodes or chosen.episodes,
-                                 adversary_steps=cfg.adversary_steps or chosen.adversary_steps)
+                                 adversary_steps=cfg.adversary_steps or chosen.adversary_steps,
+                                 timing_adversary_steps=cfg.timing_steps or chosen.timing_adversary_steps)
     modes = [check_name("mode", m, ATTACKED_MODES) for m in comma_list(cfg.modes)]
     external = cfg.policy == "external"
     if check_name("via", via_of(cfg), VIAS) == "engine" and external:
@@ -359,12 +373,34 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
                       horizon=cfg.horizon, **iterations)
 
 
-def timing_cell(cfg: ScorecardConfig, budget: Budget, policy: str, row: str) -> EvalConfig:
+def timing_cell(cfg: ScorecardConfig, budget: Budget, policy: str, row: str, file: Path | None = None
+                ) -> EvalConfig:
     """A timing row's cell: ``policy`` clean but for the timing attack ``row`` (:data:`aril_ros.timing.TIMING_ROWS`)
-    at the scorecard's budget, the most every step."""
+    at the scorecard's budget, the most every step, or picked by the timing adversary ``file``."""
     late = {"delay": {"delay": cfg.timing}, "action_delay": {"action_delay": cfg.timing},
-            "drop": {"drop": cfg.timing / 10}}[row]
+            "drop": {"drop": cfg.timing / 10},
+            LEARNED_TIMING_ROW: {"drop": cfg.timing / 10, "timing": "learned", "timing_file": str(file)}}[row]
     return dataclasses.replace(cell(cfg, budget, "clean", "none", 0.0, policy=policy), **late)
+
+
+def timing_adversaries(cfg: ScorecardConfig, budget: Budget, tested: list[str], made: dict, out: Path, log
+                       ) -> dict[str, Path]:
+    """The learned timing row's adversary per tested policy, trained (or kept from a rerun) black-box: against the
+    file, or for an external node against the pipeline's surrogate of it (the sensory one where there are two);
+    none for an external node scored without the pipeline, which says so."""
+    surrogate = (made.get("sensory") or next(iter(made.values()))).surrogate if made else None
+    victims = {policy: policy if cfg.policy != "external" else surrogate for policy in tested}
+    if None in victims.values():
+        log(f"[scorecard] no learned timing row: it trains against the pipeline's surrogate of an external node, and "
+            f"attacks:={cfg.attacks} runs no pipeline ({', '.join(PIPELINE_ATTACKS)})")
+    wanted = {policy: AdversaryConfig(env=cfg.env, mode="clean", drop=cfg.timing / 10, victim=str(victim),
+                                      expert=cfg.expert, steps=budget.timing_adversary_steps,
+                                      out=str(out / f"timing-adversary-{Path(policy).stem}.pt"))
+              for policy, victim in victims.items() if victim is not None}
+    log(f"[scorecard] the learned timing row: a timing adversary trained {budget.timing_adversary_steps:,} steps "
+        f"against {'the surrogate' if cfg.policy == 'external' else 'the policy'} (drops of {cfg.timing}0%)")
+    files = ready_adversaries(list(wanted.values()), False, log, cfg.workers, cfg.address)
+    return dict(zip(wanted, files))
 
 
 def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:

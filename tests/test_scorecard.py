@@ -384,14 +384,20 @@ def test_timing_rows_score_the_policy_late_on_the_clean_cells_episodes(tmp_path)
     of the observations dropped) are aril eval's cells of the same episodes, the policy otherwise clean; the worst is
     the lowest return, with its paired drop; timing:=0 scores none, and the quick budget the delay alone."""
     from aril_ros.report.stats import paired_drop
+    from aril_ros.timing_adversary import load_timing_adversary
 
     cfg = ScorecardConfig(policy="dagger", env="Swimmer-v5", modes="sensory", budget="full", episodes=2, horizon=25,
-                          scales="1", attacks="random", timing=2, workers=1, out=str(tmp_path / "full"))
+                          scales="1", attacks="random", timing=2, timing_steps=4096, workers=1,
+                          out=str(tmp_path / "full"))
     page = scorecard(cfg, log=lambda *a, **k: None).read_text()
     card = json.loads((tmp_path / "full" / "scorecard.json").read_text())
     assert card["timing"]["k"] == 2 and list(card["timing"]["policies"]) == ["dagger"]
     timed = card["timing"]["policies"]["dagger"]
-    for row, settings in {"delay": {"delay": 2}, "action_delay": {"action_delay": 2}, "drop": {"drop": 0.2}}.items():
+    assert list(timed["cells"]) == ["delay", "action_delay", "drop", "drop_learned"]
+    learned = tmp_path / "full" / "timing-adversary-dagger.pt"  # trained against the policy, black-box
+    assert load_timing_adversary(learned).meta["provenance"]["steps"] == 4096
+    for row, settings in {"delay": {"delay": 2}, "action_delay": {"action_delay": 2}, "drop": {"drop": 0.2},
+                          "drop_learned": {"drop": 0.2, "timing": "learned", "timing_file": str(learned)}}.items():
         alone = evaluate(EvalConfig(env="Swimmer-v5", policy="dagger", episodes=2, seed=cfg.seed, horizon=25,
                                     **settings))
         assert [round(e["return"], 3) for e in timed["cells"][row]["episodes"]] == alone["returns"]
@@ -400,6 +406,7 @@ def test_timing_rows_score_the_policy_late_on_the_clean_cells_episodes(tmp_path)
     assert timed["worst"]["attack"] == worst and timed["worst"]["drop_pct"] == drop["drop_pct"]
     section = page.split("## Timing, 2 step(s)")[1]
     assert "| every observation 2 step(s) late |" in section and "| 20% of the observations dropped |" in section
+    assert "| 20% of the observations dropped when a timing adversary trained against it picks |" in section
     assert f"{drop['drop_pct']:+.1f}% [{drop['ci95_pct'][0]:+.1f}, {drop['ci95_pct'][1]:+.1f}]**" in section
 
     quick = dataclasses.replace(cfg, budget="quick", timing=1, out=str(tmp_path / "quick"))
