@@ -487,8 +487,7 @@ class Collector:
     def progress_line(self, steps: int, seconds: float) -> str:
         recent = self.finished_return[-4 * len(self.sims):]
         loss = self.recent_loss()
-        what = (", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in asdict(timing_budget(self.cfg)).items() if v)
-                if timed(self.cfg) else f"{self.cfg.mode} eps={self.cfg.eps}")
+        what = timing_budget(self.cfg).described() if timed(self.cfg) else f"{self.cfg.mode} eps={self.cfg.eps}"
         return (f"[train-adversary {self.cfg.env} {what}] step {steps:>8d}  "
                 f"{steps / seconds:6.0f} steps/s  episode loss {float('nan') if loss is None else loss:9.1f}  "
                 f"victim return {np.mean(recent) if recent else float('nan'):8.1f}  "

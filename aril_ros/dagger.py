@@ -15,7 +15,6 @@ with the run's collector (:mod:`aril_ros.collectors`), fit the next learner, and
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -79,8 +78,7 @@ def select_best(cfg: LearnerConfig, run: LearnerRun, log) -> Path:
     """The theorem (like DAgger's) bounds the best of the learners pi_1..pi_R, each judged here by its
     own round: its return under the attack of that round (for ARIL, the adversary trained against it)."""
     best = max(run.rounds[1:], key=lambda rec: rec["return"])
-    timing = (f", timed by {run.timing_chooser} within " + ", ".join(
-        f"{k.replace('_', ' ')} {v:g}" for k, v in dataclasses.asdict(run.timing).items() if v)) if run.timing.any else ""
+    timing = f", timed by {run.timing_chooser} within {run.timing.described()}" if run.timing.any else ""
     out = run.save_selected(best["round"], "the learner with the best return in its own round"
                             + (f" ({run.mode}, {run.attack} eps {cfg.eps}{timing})" if run.attack != "none"
                                else f" (clean{timing})"))

@@ -85,6 +85,10 @@ class TimingBudget:
     def any(self) -> bool:
         return bool(self.delay or self.drop or self.action_delay)
 
+    def described(self) -> str:
+        """The budget as a line of text names it: its settings that are set (``delay 1, drop 0.1``)."""
+        return ", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in dataclasses.asdict(self).items() if v)
+
 
 @dataclass(frozen=True)
 class TimingAttack:

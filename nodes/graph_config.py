@@ -168,8 +168,6 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
     if cfg.render:
         frame_size(cfg.render_size)
     timing = TimingAttack.of(cfg)
-    if timing.chooser == "learned":  # a missing file, or one of another budget or env, refused before any node starts
-        timing.timeline(1, layout_of(cfg.env).obs_dim, layout_of(cfg.env).act_dim, [])
     if (cfg.delay or cfg.drop) and cfg.mode == "physical":
         raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "
                          "which in mode physical the simulator publishes: give mode:=clean or sensory (the engine, "
@@ -179,6 +177,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                          "policy can be attacked with a black-box one: "
                          + ", ".join(a for a in ATTACKS if a not in (*WHITE_BOX, "none")))
     layout = layout_of(cfg.env)
+    if timing.chooser == "learned":  # a missing file, or one of another budget or env, refused before any node starts
+        timing.timeline(1, layout.obs_dim, layout.act_dim, [])
     eps = attack_budget(cfg.env, cfg.mode, choice.name, cfg.eps)
     adversary, adversary_net = _adversary(cfg, choice.name, choice.file)
     if adversary_net is not None:  # its file's eps, or the one it is rescaled to
