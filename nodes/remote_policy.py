@@ -31,9 +31,11 @@ from aril_ros_nodes.common import STEP_QOS, joint_state, publishers, step_header
 
 
 RESEND_AFTER = 1.0
-"""Seconds after which an unanswered probe is asked again: a probe sent just after the client matched the
-policy's publisher may go out before that publisher has matched the client (each side matches on its own),
-and its answer is then lost. A policy without hidden state answers a repeated probe the same way."""
+"""Seconds after which an unanswered probe is asked again, until the policy's first answer arrives: a probe sent
+just after the client matched the policy's publisher may go out before that publisher has matched the client (each
+side matches on its own), and its answer is then lost. Once an answer has arrived nothing more is lost (the step QoS
+keeps every message), so a slow node is not asked twice. A policy without hidden state answers a repeated probe the
+same way."""
 
 
 BATCH_ROWS = 256
@@ -66,6 +68,7 @@ class RemotePolicy:
         self.pub = self.node.create_publisher(JointState, P.OBSERVATION, STEP_QOS)
         self.waiting: set[str] = set()  # the probe tags asked and not yet answered
         self.replies: dict[str, np.ndarray] = {}
+        self.answered = False  # whether any answer of ours has arrived: the policy's publisher has matched us
         self.sub = self.node.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
         self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -103,6 +106,7 @@ class RemotePolicy:
     def on_action(self, msg: JointState) -> None:
         if msg.header.frame_id in self.waiting:  # step actions and others' answers are not ours to keep
             self.waiting.discard(msg.header.frame_id)
+            self.answered = True
             self.replies[msg.header.frame_id] = np.asarray(msg.effort, dtype=np.float64)
 
     def answers_in_batches(self) -> tuple[bool, str]:
@@ -144,7 +148,7 @@ class RemotePolicy:
         self.publish(zip(tags, chunks))
         deadline, resend = time.monotonic() + self.timeout, time.monotonic() + RESEND_AFTER
         while self.waiting:
-            if time.monotonic() > resend:
+            if not self.answered and time.monotonic() > resend:
                 self.publish((tag, chunk) for tag, chunk in zip(tags, chunks) if str(tag) in self.waiting)
                 resend = time.monotonic() + RESEND_AFTER
             if time.monotonic() > deadline:
