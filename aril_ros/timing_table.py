@@ -10,15 +10,21 @@ a 95% interval over them (:func:`aril_ros.report.stats.summarise`); the table wr
 clean, then every budget. Beside it, per budget with a learned chooser, the three choosers side by side: what
 learning *when* to be late buys over random latency of the same budget.
 
-Every cell is kept in ``<out>.json`` with its per-episode returns and settings, the CPU it ran on among them; a rerun
-keeps the cells it finds with the same settings (a run stopped, or a fresh clone on the same CPU model, resumes:
-commit ``<out>.json`` and the adversaries as they come; on another CPU model every cell runs again, since the same
+Every cell is kept in ``<out>.json`` with its per-episode returns and settings, the CPU it ran on among them, written
+as each cell finishes; a rerun keeps the cells it finds with the same settings (a run stopped, or a fresh clone on the
+same CPU model, resumes: commit ``<out>.json`` and the adversaries as they come; on another CPU model every cell runs again, since the same
 files give other episodes there, and the trained adversaries are kept). The timing adversaries go to ``adversary_dir``, one per (env,
-defense, seed, budget), reused when trained for the same budget against the same policy file.
+defense, seed, budget), reused when trained for the same budget against the same policy file. A ``label=path`` row
+with no file on an env (a defense trained on some envs only) is left out of that env's table, which says so.
+
+Below each env's tables, a paragraph computed from them: which defense keeps the most under its worst timing attack
+(and in how many columns the intervals over seeds separate it from the next), and what the learned chooser takes
+beside random latency of the same budget.
 """
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,11 +32,11 @@ from . import seeds
 from .adversary import AdversaryConfig, ready_adversaries
 from .args import arg, comma_list
 from .envs import HORIZON
-from .evaluation import EvalConfig, evaluate_all
+from .evaluation import EvalConfig, evaluation_task, shipped_job
 from .provenance import cpu, portable, stamp
 from .registry import DEFENSES, PAPER_ENVS, PER_MODE_POLICIES, bundled_file
 from .report.stats import summarise
-from .sweep import digest_of, session
+from .sweep import digest_of, run_tasks, session
 from .timing import CHOOSERS, TimingBudget
 
 KINDS = {"delay": "observations late", "action_delay": "actions late", "drop": "observations dropped"}
@@ -107,12 +113,15 @@ def learned_budgets(cfg: TimingTableConfig, swept: list[Budget]) -> list[Budget]
 
 
 def defense_files(cfg: TimingTableConfig, env: str) -> dict[str, list[Path]]:
-    """Each row's policy file per training seed."""
+    """Each row's policy file per training seed; a ``label=path`` row none of whose files exists on ``env`` is not
+    among them (trained on other envs only), one with some of them missing is an error."""
     rows = {}
     for entry in comma_list(cfg.defenses):
         label, _, pattern = entry.partition("=")
         if pattern:
-            rows[label] = [Path(pattern.format(env=env, seed=s)) for s in map(int, comma_list(cfg.training_seeds))]
+            files = [Path(pattern.format(env=env, seed=s)) for s in map(int, comma_list(cfg.training_seeds))]
+            if any(file.is_file() for file in files):
+                rows[label] = files
             continue
         if label not in DEFENSES:
             raise ValueError(f"unknown defense {label!r}: a bundled learner ({', '.join(DEFENSES)}) or label=path")
@@ -134,14 +143,14 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
     json_path, md_path = Path(cfg.out).with_suffix(".json"), Path(cfg.out).with_suffix(".md")
     swept = budgets(cfg)
     learned = learned_budgets(cfg, swept)
-    kept = json.loads(json_path.read_text())["cells"] if json_path.exists() else {}
+    cells = json.loads(json_path.read_text())["cells"] if json_path.exists() else {}
     common = dict(expert=cfg.expert, episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon, mode="clean")
     jobs, wanted = {}, []
     for env in comma_list(cfg.envs):
         for label, files in defense_files(cfg, env).items():
             for s, file in zip(map(int, comma_list(cfg.training_seeds)), files):
                 digest = digest_of(file.read_bytes())
-                cells = {"clean": EvalConfig(env=env, policy=str(file), **common)}
+                evaluations = {"clean": EvalConfig(env=env, policy=str(file), **common)}
                 for budget in swept:
                     for chooser in ("fixed", "random", *(("learned",) if budget in learned else ())):
                         adversary = (Path(cfg.adversary_dir) / f"{env}-{label}-seed{s}-{budget.name}.pt"
@@ -150,31 +159,37 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
                             wanted.append(AdversaryConfig(env=env, mode="clean", **asdict(budget.timing),
                                                           victim=portable(str(file)), expert=cfg.expert,
                                                           steps=cfg.learned_steps, out=str(adversary)))
-                        cells[f"{budget.name}-{chooser}"] = EvalConfig(
+                        evaluations[f"{budget.name}-{chooser}"] = EvalConfig(
                             env=env, policy=str(file), **common, **asdict(budget.timing), timing=chooser,
                             timing_file=str(adversary or ""))
-                for name, job in cells.items():
+                for name, job in evaluations.items():
                     key = f"{env}|{label}|{s}|{name}"
                     # the CPU too: torch's kernels differ between CPU models, and so do the episodes of one file
                     settings = {"policy_sha256": digest, "episodes": cfg.episodes, "seed": cfg.seed,
                                 "horizon": cfg.horizon, "cpu": cpu(),
                                 **({"learned_steps": cfg.learned_steps} if name.endswith("learned") else {})}
-                    if kept.get(key, {}).get("settings") != settings:
+                    if cells.get(key, {}).get("settings") != settings:
                         jobs[key] = (job, settings)
-    log(f"[timing-table] {len(jobs)} cells to run ({len(kept)} kept), {len(wanted)} timing adversaries wanted",
+    log(f"[timing-table] {len(jobs)} cells to run ({len(cells)} kept), {len(wanted)} timing adversaries wanted",
         flush=True)
+
+    def write() -> dict:
+        payload = {"cells": dict(sorted(cells.items())), **made, "table": table(cfg, cells, swept, learned)}
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(payload, indent=1) + "\n")
+        return payload
+
     with session(cfg.workers, cfg.address):
         ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
-        results = evaluate_all([asdict(job) for job, _ in jobs.values()], cfg.workers, cfg.address, log,
-                               label="timing-table cells")
-    cells = {**kept, **{key: {"returns": result["returns"], "mean_return": result["mean_return"],
-                              "settings": settings, "policy": portable(job.policy),
-                              **({"timing_file": portable(job.timing_file)} if job.timing_file else {})}
-                        for (key, (job, settings)), result in zip(jobs.items(), results)}}
-    payload = {"cells": dict(sorted(cells.items())), **made,
-               "table": table(cfg, cells, swept, learned)}
-    json_path.parent.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(payload, indent=1) + "\n")
+        keys = list(jobs)
+        for index, result in run_tasks(evaluation_task, [(shipped_job(asdict(jobs[key][0])),) for key in keys],
+                                       cfg.workers, cfg.address, label="timing-table cells", log=log):
+            job, settings = jobs[keys[index]]
+            cells[keys[index]] = {"returns": result["returns"], "mean_return": result["mean_return"],
+                                  "settings": settings, "policy": portable(job.policy),
+                                  **({"timing_file": portable(job.timing_file)} if job.timing_file else {})}
+            write()  # as each cell finishes: a run stopped resumes from it
+    payload = write()
     md_path.write_text(markdown(cfg, payload["table"], swept, learned))
     return payload
 
@@ -196,21 +211,41 @@ def table(cfg: TimingTableConfig, cells: dict, swept: list[Budget], learned: lis
                 present = {c: v for c, v in choosers.items() if v}
                 worst = min(present, key=lambda c: present[c]["mean"]) if present else None
                 row["budgets"][budget.name] = {"choosers": choosers, "worst": worst}
-            out[f"{env}|{label}"] = row
+            if row["clean"] or any(entry["worst"] for entry in row["budgets"].values()):
+                out[f"{env}|{label}"] = row  # a row with no cell on this env: trained on other envs only
     return out
 
 
 def markdown(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: list[Budget]) -> str:
+    return "\n".join(["# Timing attacks: each defense under its worst timing attack", "",
+                      *sections(cfg, rows, swept, learned, "##")])
+
+
+def report_lines(path: Path, report: Path) -> list[str]:
+    """The timing section of the report at ``report`` from a kept table (``<out>.json`` of ``aril timing-table``),
+    headed at level 3; nothing when there is none."""
+    if not path.is_file():
+        return []
+    payload = json.loads(path.read_text())
+    cfg = TimingTableConfig(**payload["settings"])
+    swept = budgets(cfg)
+    learned = learned_budgets(cfg, swept)
+    link = os.path.relpath(path, report.parent)
+    return [f"Made by `{payload['command']}` (on {payload['versions']['cpu']}; [`{path}`]({link}) keeps every "
+            "cell).", "", *sections(cfg, table(cfg, payload["cells"], swept, learned), swept, learned, "###")]
+
+
+def sections(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: list[Budget], heading: str) -> list[str]:
+    """The table's explanation, then per env its table, the learned chooser's beside it and what they show."""
     seed_list = comma_list(cfg.training_seeds)
-    lines = ["# Timing attacks: each defense under its worst timing attack", "",
-             f"Return under each timing attack alone (the policy clean otherwise), the worst of fixed, random"
+    lines = [f"Return under each timing attack alone (the policy clean otherwise), the worst of fixed, random"
              f"{' and a learned timing adversary (*: at this budget)' if learned else ''} (its initial in brackets: "
              f"f, r, l), mean over training seeds {', '.join(seed_list)} ± a 95% interval over them, "
              f"{cfg.episodes} episodes each from env seed {cfg.seed}. Columns: the budget k of each attack (delay "
              "and action delay in steps, drop as a share of the steps). Every cell, per seed and per episode, with "
              "its command and CPU, is in the JSON.", ""]
     for env in comma_list(cfg.envs):
-        lines += [f"## {env}", "", "| defense | clean | " + " | ".join(
+        lines += [f"{heading} {env}", "", "| defense | clean | " + " | ".join(
             f"{KINDS[b.kind]} {b.label}{'*' if b in learned else ''}" for b in swept) + " |",
                   "|---|---|" + "---|" * len(swept)]
         for key, row in rows.items():
@@ -235,7 +270,63 @@ def markdown(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: l
                         " / ".join(_mean(row["budgets"][b.name]["choosers"].get(c)) for c in CHOOSERS)
                         for b in learned) + " |")
             lines.append("")
-    return "\n".join(lines)
+        shown = {key.split("|")[1]: row for key, row in rows.items() if key.startswith(f"{env}|")}
+        absent = [entry.partition("=")[0] for entry in comma_list(cfg.defenses)
+                  if entry.partition("=")[0] not in shown]
+        if absent:
+            lines += [f"Not on {env} (no policy file of it there): {', '.join(absent)}.", ""]
+        lines += [findings(shown, swept, learned), ""]
+    return lines
+
+
+def findings(rows: dict, swept: list[Budget], learned: list[Budget]) -> str:
+    """What one env's table shows, in words computed from it: the defense that keeps the most under its worst timing
+    attack, in how many columns (and in how many its interval over the seeds clears the next one's), what it keeps
+    clean; and at each learned budget, the share of clean return each chooser leaves, averaged over the defenses."""
+    def worst(row: dict, budget: Budget) -> dict | None:
+        entry = row["budgets"][budget.name]
+        return entry["choosers"].get(entry["worst"]) if entry["worst"] else None
+
+    leads, clear, columns = {}, {}, 0
+    for budget in swept:
+        ranked = sorted(((cell, label) for label, row in rows.items() if (cell := worst(row, budget))),
+                        key=lambda pair: -pair[0]["mean"])
+        if len(ranked) < 2:
+            continue
+        columns += 1
+        (top, label), (second, _) = ranked[:2]
+        leads[label] = leads.get(label, 0) + 1
+        clear[label] = clear.get(label, 0) + (top["mean"] - top["ci95"] > second["mean"] + second["ci95"])
+    if not columns:
+        return "Too few defenses with cells here to compare."
+    order = sorted(leads, key=lambda label: -leads[label])
+    name = lambda label: DEFENSES.get(label, label)  # noqa: E731
+    cleans = {label: row["clean"]["mean"] for label, row in rows.items() if row["clean"]}
+    best_clean = max(cleans, key=cleans.get) if cleans else None
+    text = (f"Under its worst timing attack {name(order[0])} keeps the most return in {leads[order[0]]} of {columns} "
+            f"columns (its interval over the seeds clear of the next defense's in "
+            f"{clear[order[0]] or 'none of them'})"
+            + "".join(f", {name(label)} in {leads[label]}" for label in order[1:]) + ".")
+    if best_clean and order[0] in cleans:
+        text += (f" Clean, {name(order[0])} keeps {cleans[order[0]]:.0f}" + (
+            ", the most." if best_clean == order[0] else f" ({name(best_clean)}: {cleans[best_clean]:.0f})."))
+    for budget in learned:
+        shares = {chooser: [] for chooser in CHOOSERS}
+        worst_count = 0
+        for row in rows.values():
+            entry = row["budgets"][budget.name]
+            if not row["clean"] or not all(entry["choosers"].get(c) for c in CHOOSERS):
+                continue
+            worst_count += entry["worst"] == "learned"
+            for chooser in CHOOSERS:
+                shares[chooser].append(entry["choosers"][chooser]["mean"] / row["clean"]["mean"])
+        if shares["learned"]:
+            text += (f" With {KINDS[budget.kind]} {budget.label}, the learned timing adversary is the worst chooser "
+                     f"against {worst_count} of {len(shares['learned'])} defenses and leaves "
+                     f"{100 * sum(shares['learned']) / len(shares['learned']):.0f}% of clean return on average, "
+                     f"random latency of the same budget {100 * sum(shares['random']) / len(shares['random']):.0f}%, "
+                     f"fixed (the most every step) {100 * sum(shares['fixed']) / len(shares['fixed']):.0f}%.")
+    return text
 
 
 def _cell(cell: dict | None) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import timing_table  # the module, not its names: it imports report.stats, so it may be importing us
 from ..envs import layout_of
 from ..registry import ATTACKS, DEFENSES, MODES, PAPER_DEFENSES, SCORECARD_ATTACKS, TABLE_SEARCH, WHITE_BOX
 from ..timing import TIMING_ROWS
@@ -218,6 +219,13 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
               "| run | rounds | returned | round adversaries |", "|---|---|---|---|"]
     lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {_round_adversaries(c)} |"
               for name, c in payload["aril_rounds"].items()]
+    # the table's own product, kept where `aril timing-table` writes it by default
+    timing = timing_table.report_lines(Path(timing_table.TimingTableConfig().out).with_suffix(".json"), out)
+    if timing:
+        lines += ["", "## Timing attacks", "",
+                  "Observations late or dropped and actions late, each alone, against the defenses above and against "
+                  "defenses trained with a timing budget in their loop (`aril timing-table`, "
+                  "[attacks and defenses](attacks-defenses.md)); not part of this report's run.", "", *timing]
     lines += ["", "## Performance", "", *performance(payload["benchmarks"]), ""]
     lines += ["## Seeing an attack", ""]
     if gifs:
