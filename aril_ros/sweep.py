@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib
 import os
 import shutil
 import socket
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -33,11 +30,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from .extras import RAY, ensure
 from .files import write_atomically
 from .provenance import portable
 
-RAY = "ray==2.60.*"
-"""What the ``cluster`` extra of pyproject.toml installs (kept equal to it)."""
 
 
 @dataclass(frozen=True)
@@ -181,17 +177,7 @@ def _task(fn, call):
 
 def ensure_ray():
     """``ray``, installed into this Python first if it is missing (the ``cluster`` extra, on first use)."""
-    try:
-        import ray
-    except ModuleNotFoundError:
-        print(f"[sweep] installing {RAY} (the cluster extra; once)", file=sys.stderr, flush=True)
-        # in a checkout, under its pins (constraints.txt): ray's own requirements must not move what made the tables
-        pins = Path(__file__).resolve().parents[1] / "constraints.txt"
-        subprocess.run([sys.executable, "-m", "pip", "install", "--disable-pip-version-check", "-q", RAY,
-                        *(["-c", str(pins)] if pins.exists() else [])], check=True)
-        importlib.invalidate_caches()  # the import system listed site-packages before ray was in it
-        import ray
-    return ray
+    return ensure("ray", RAY, "the cluster extra, for sweeps on Ray")
 
 
 def connect(address: str, workers: int):

@@ -68,6 +68,12 @@ class GraphConfig:
                               "unless set) and publishes sim/camera/image/compressed (JPEG), the log keeps them")
     render_every: int = arg(5, "render:=true: a frame every this many steps", low=1)
     render_size: str = arg("320x240", "render:=true: frame width x height in pixels")
+    live: str = arg("off", "serve the run to Foxglove as it runs (docs/live-and-export.md): on, wait (hold the first step "
+                           "until a viewer subscribes) or off")
+    live_port: int = arg(8765, "live:=on|wait: the WebSocket port of the live view (0: a free one, printed)", low=0,
+                         high=65535)
+    live_host: str = arg("127.0.0.1", "live:=on|wait: the address the live view listens on (0.0.0.0: every "
+                                      "interface, for a viewer on another machine)")
     delay: int = timing_arg("delay", "clean and sensory, played by the attacker node")
     drop: float = timing_arg("drop", "clean and sensory, played by the attacker node")
     action_delay: int = timing_arg("action_delay", "every mode, played by the simulator node as the attacker node's "
@@ -76,6 +82,8 @@ class GraphConfig:
     timing_file: str = timing_arg("timing_file")
 
 
+LIVE = ("off", "on", "wait")
+"""What ``live:=`` takes."""
 ONE_ATTACKS_ARGUMENTS = {"attack_file": ("aril_a", "transfer"), "search": ("aril_a",), "rescale": ("aril_a",),
                          "samples": ("spsa",)}
 """Arguments that some attacks alone read, and those attacks."""
@@ -167,6 +175,8 @@ def plan_run(cfg: GraphConfig) -> GraphRun:
                                 f"{' and '.join(f'attack:={u}' for u in users)} only, got attack:={choice.name}")
     if cfg.render:
         frame_size(cfg.render_size)
+    if cfg.live not in LIVE:
+        raise ArgumentError(f"live:= is one of {', '.join(LIVE)}, got {cfg.live!r}")
     timing = TimingAttack.of(cfg)
     if (cfg.delay or cfg.drop) and cfg.mode == "physical":
         raise GraphError("delay:= and drop:= are played by the attacker node on the observation it publishes, "

@@ -26,6 +26,7 @@ from pathlib import Path
 from aril_ros import protocol as P
 from aril_ros.protocol import ros_domain
 from aril_ros.runlog import RunLogWriter, StepRecorder
+from aril_ros.runlog.live import LiveView
 from aril_ros.step import episode_seed, summarise_episodes
 from aril_ros_nodes.graph_client import GraphClient
 from aril_ros_nodes.graph_config import GraphConfig, plan_run
@@ -33,8 +34,9 @@ from aril_ros_nodes.launcher import GraphError, Nodes, RunInterrupted, StopSigna
 
 __all__ = ["GraphConfig", "GraphError", "Orchestrator", "RunInterrupted", "allocate_domain"]  # run_graph's, collect's
 
-EXTERNAL_HINT_EVERY = 5.0
-"""Seconds between two reminders, while an external policy node is awaited, of what is missing and how to join."""
+HINT_EVERY = 5.0
+"""Seconds between two reminders of what a run waits for: of an external policy node, what is missing and how to
+join; a live viewer (``live:=wait``)."""
 
 
 class Orchestrator:
@@ -64,16 +66,20 @@ class Orchestrator:
                  + (f"({plan.why}) " if plan.why else "") + f"domain={domain} logs={self.log_dir}"
                  + (f" (the external policy node: answer once action has {plan.action_listeners} subscribers)"
                     if self.cfg.policy == "external" else ""), file=sys.stderr)
-        recorder = ros = None
+        recorder = ros = live = None
         interrupted, reason = False, ""
         with self.signals:  # until the log is closed
             try:
                 # first: a record path that exists or cannot be written stops the run before any node starts
                 writer = RunLogWriter(self.record, plan.metadata(), camera=self.cfg.render) if self.record else None
-                recorder = StepRecorder(writer, P.step_topics(plan.timing is not None))
+                topics = P.step_topics(plan.timing is not None)
+                live = self.start_live(topics)
+                recorder = StepRecorder(writer, topics, live)
                 self.start_nodes(env)
                 ros = GraphClient(recorder, camera=self.cfg.render)
                 self.wait_connected(ros)
+                if self.cfg.live == "wait":
+                    self.wait_watched(ros, live)
                 started = time.monotonic()
                 for episode in range(self.cfg.episodes):
                     self.run_episode(ros, recorder, episode)
@@ -89,7 +95,30 @@ class Orchestrator:
                     recorder.close(interrupted=interrupted, reason=reason)
                     self.log(f"[run_graph] recorded {recorder.writer.steps} complete steps to {self.record}",
                              file=sys.stderr)
+                if live is not None:
+                    live.close()
         return self.summary(recorder, seconds, domain)
+
+    def start_live(self, topics: tuple[str, ...]) -> LiveView | None:
+        """The live view (``live:=on|wait``), serving before any node starts, its address said; else None."""
+        if self.cfg.live == "off":
+            return None
+        live = LiveView(self.cfg.live_host, self.cfg.live_port, topics, camera=self.cfg.render)
+        self.log(f"[run_graph] live view at {live.url}: in Foxglove, Open connection > Foxglove WebSocket > {live.url}"
+                 " (layout: docs/foxglove/aril-layout.json)", file=sys.stderr, flush=True)
+        return live
+
+    def wait_watched(self, ros: GraphClient, live: LiveView) -> None:
+        """Until a viewer subscribes to the live view (``live:=wait``), saying every :data:`HINT_EVERY`
+        seconds what the run waits for; as long as it takes (Ctrl-C stops the run)."""
+        next_hint = time.monotonic() + HINT_EVERY
+        while not live.watched():
+            self.check_nodes()
+            if time.monotonic() >= next_hint:
+                next_hint = time.monotonic() + HINT_EVERY
+                self.log(f"[run_graph] live:=wait: waiting for a viewer to subscribe at {live.url}", file=sys.stderr,
+                         flush=True)
+            ros.spin(0.05)
 
     def start_nodes(self, env: dict) -> None:
         params = self.plan.node_params()
@@ -139,9 +168,9 @@ class Orchestrator:
     def wait_connected(self, ros: GraphClient) -> None:
         """Until every started node has announced that its endpoints are matched (graph/ready), the
         recorder hears every step topic, and the reset service answers. While an external policy node is
-        awaited, says every :data:`EXTERNAL_HINT_EVERY` seconds what of it is missing and how to join the run."""
+        awaited, says every :data:`HINT_EVERY` seconds what of it is missing and how to join the run."""
         deadline = time.monotonic() + self.cfg.connect_timeout
-        next_hint = time.monotonic() + EXTERNAL_HINT_EVERY
+        next_hint = time.monotonic() + HINT_EVERY
         external = self.cfg.policy == "external"
         while True:
             self.check_nodes()
@@ -153,7 +182,7 @@ class Orchestrator:
             if now > deadline:
                 raise GraphError(self.not_connected_text(ros, missing))
             if external and now >= next_hint:
-                next_hint = now + EXTERNAL_HINT_EVERY
+                next_hint = now + HINT_EVERY
                 endpoints = ros.external_endpoints(self.own_nodes())
                 absent = [what for what, nodes in endpoints.items() if not nodes]
                 if absent:

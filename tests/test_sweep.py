@@ -7,9 +7,10 @@ from pathlib import Path
 import pytest
 
 from aril_ros.provenance import cpu
+from aril_ros.extras import FOXGLOVE, RAY
 from aril_ros.registry import BundledFileError, adversary_path, bundled_file
 from aril_ros.report.jobs import FAILURES, evaluated_on, run_jobs
-from aril_ros.sweep import RAY, Kept, Produced, Shipped, connect, ensure_ray, kept_folder, run_tasks
+from aril_ros.sweep import Kept, Produced, Shipped, connect, ensure_ray, kept_folder, run_tasks
 
 # one pytest-xdist worker runs them all: one Ray installed once (ensure_ray), one cluster at a time
 pytestmark = pytest.mark.xdist_group("ray")
@@ -172,11 +173,13 @@ def test_an_evaluation_sweep_on_two_nodes_is_bit_identical_to_one_process(two_no
     assert again == on_cluster and counts == {"run": 0, "cached": 6}
 
 
-def test_the_cluster_extra_is_what_the_sweeps_install():
+def test_each_extra_is_what_its_first_use_installs():
     import tomllib
 
     pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
-    assert pyproject["project"]["optional-dependencies"]["cluster"] == [RAY]
+    extras = pyproject["project"]["optional-dependencies"]
+    assert extras["cluster"] == [RAY] and extras["live"] == [FOXGLOVE]
+    assert FOXGLOVE in extras["test"]  # the live view's test needs it, and CI installs the test extra
 
 
 def test_a_task_runs_as_many_physics_threads_as_it_has_cpus(monkeypatch):

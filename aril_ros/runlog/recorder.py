@@ -25,11 +25,12 @@ class StepFault(ValueError):
     """A step message the recorder refuses: a second, different copy, or a malformed frame_id."""
 
 
-def add_step(episode: EpisodeStats, messages: dict[str, bytes], actions: dict[int, np.ndarray]) -> None:
-    """A step's figures (``messages``: its CDR bytes by topic) into its episode's; the episode ends with the step
-    whose reward says terminated or truncated. ``actions``: a timed run's episode's actions so far by step, this
-    one's added: under an action delay (the step's ``attack/timing``) the action applied, whose disagreement counts,
-    is an earlier one (:func:`aril_ros.step.applied_step`)."""
+def add_step(episode: EpisodeStats, messages: dict[str, bytes], actions: dict[int, np.ndarray]) -> dict:
+    """A step's figures (``messages``: its CDR bytes by topic) into its episode's, and returned (``reward``,
+    ``action`` applied, ``expert_action``, ``perturbation``); the episode ends with the step whose reward says
+    terminated or truncated. ``actions``: a timed run's episode's actions so far by step, this one's added: under an
+    action delay (the step's ``attack/timing``) the action applied, whose disagreement counts, is an earlier one
+    (:func:`aril_ros.step.applied_step`)."""
     def values(topic):
         return cdr.joint_values(messages[topic], VALUES[topic])
 
@@ -39,12 +40,16 @@ def add_step(episode: EpisodeStats, messages: dict[str, bytes], actions: dict[in
         earlier = int(applied_step(t, int(values(P.TIMING)[2])))
         action = actions[earlier] if earlier >= 0 else np.full_like(action, DEFAULT_ACTION)
     reward, terminated, truncated = values(P.REWARD)
-    episode.add(reward, action, values(P.EXPERT_ACTION), values(P.PERTURBATION), done=bool(terminated or truncated))
+    figures = {"reward": reward, "action": action, "expert_action": values(P.EXPERT_ACTION),
+               "perturbation": values(P.PERTURBATION)}
+    episode.add(reward, action, figures["expert_action"], figures["perturbation"], done=bool(terminated or truncated))
+    return figures
 
 
 class StepRecorder:
     """Collects each step's raw messages by step tag, and the probes asked during it by probe tag; writes a
-    step with its probes once it is complete, in order, to ``writer`` (None: figures only).
+    step with its probes once it is complete, in order, to ``writer`` (None: figures only), and shows it on ``live``
+    (a :class:`aril_ros.runlog.live.LiveView`; None: no live view).
 
     Exactly one message per topic per step: a second copy of a step message, whether the step is still open or
     already written, is counted as a harmless duplicate (``duplicates``) when it is byte for byte the first, and
@@ -52,8 +57,9 @@ class StepRecorder:
     step is never reopened. Copies are compared by digest, kept for the steps of this episode and the last.
     """
 
-    def __init__(self, writer: RunLogWriter | None, topics: tuple[str, ...] = P.STEP_TOPICS):
+    def __init__(self, writer: RunLogWriter | None, topics: tuple[str, ...] = P.STEP_TOPICS, live=None):
         self.writer = writer
+        self.live = live
         self.topics = topics  # the run's step topics (aril_ros.protocol.step_topics): what completes a step
         self.pending: dict[StepTag, dict[str, bytes]] = {}
         self.clock: dict[int, bytes] = {}
@@ -93,6 +99,8 @@ class StepRecorder:
     def _write_frame(self, stamp: int, raw: bytes) -> None:
         if self.writer is not None:
             self.writer.write_frame(stamp, raw)
+        if self.live is not None:
+            self.live.show_frame(stamp, raw)
         self.frames_written += 1
 
     def on_message(self, topic: str, raw: bytes) -> None:
@@ -158,17 +166,20 @@ class StepRecorder:
             self.last_stamp = stamp
             self.probes_answered += sum(probe.rows for probe in asked)  # a probe batch answers its rows
             self.last_written = tag
+            figures = self.count_step(msgs)
+            if self.live is not None:
+                self.live.show_step(stamp, msgs, probes, figures, self.current)
             if tag in self.frames:
                 self._write_frame(*self.frames.pop(tag))
-            self.count_step(msgs)
 
-    def count_step(self, messages: dict[str, bytes]) -> None:
-        """A written step's figures into the episode's; the episode ends with its last step."""
-        add_step(self.current, messages, self.actions)
+    def count_step(self, messages: dict[str, bytes]) -> dict:
+        """A written step's figures into the episode's, and returned; the episode ends with its last step."""
+        figures = add_step(self.current, messages, self.actions)
         self.steps_written += 1
         if self.current.done:
             self.episode_stats.append(self.current)
             self.episode_done = True
+        return figures
 
     def waiting_for(self) -> StepTag:
         """The step to be written next: steps are written in order, from 0 in each episode."""
