@@ -22,6 +22,7 @@ from .evaluation import EvalConfig, evaluate
 from .experiments import (AttackTableConfig, CalibrationConfig, DefenseTableConfig, attack_table, calibrate_eps,
                           defense_table)
 from .experts import ExpertConfig, train_expert
+from .export import ExportConfig, export
 from .gail import GailConfig, train_gail
 from .learner_config import LearnerConfig
 from .learners import BCConfig, train_bc
@@ -103,6 +104,8 @@ COMMANDS = {
                              "surrogate): what attack:=transfer runs FGSM^k on."),
     "render": Command(RenderConfig, render, "See an attack: episodes rendered offscreen side by side into a GIF."),
     "log-recover": Command(RecoverConfig, run_recover, "Rewrite the intact steps of a cut-short or damaged run log."),
+    "export": Command(ExportConfig, export, "Run logs into a Minari dataset (observations seen, actions, rewards; "
+                      "the true state, perturbation and expert label as infos), which the learners read back."),
 }
 
 

@@ -22,9 +22,10 @@ from pathlib import Path
 import torch
 
 from . import seeds
+from .args import comma_list
 from .aril_rounds import RoundAdversary, train_round_adversary
 from .collectors import Collector, RoundSpec, collector_for
-from .dataset import DaggerDataset
+from .dataset import DaggerDataset, load_dagger_dataset
 from .learner_config import LearnerConfig, checked
 from .learner_run import LearnerRun
 
@@ -40,6 +41,8 @@ def train_learner(cfg: LearnerConfig, log=print, collector: Collector | None = N
         adversary = train_round_adversary(cfg, run, r, log)
         adversary_seconds = time.time() - started
         record, part = collect(collector, cfg, run, r, adversary)
+        if r == 0 and cfg.data:
+            part = given_data(cfg, part, record)
         if r < cfg.rounds:
             record.update(run.fit_next(r, part))
         record["seconds"] = round(time.time() - started, 1)
@@ -72,6 +75,13 @@ def collect(collector: Collector, cfg: LearnerConfig, run: LearnerRun, r: int, a
         clean = run.rollout(learner, None, "clean", cfg.eval_episodes, seeds.LEARNER_EVAL)
         record["clean_return"] = float(clean.returns.mean())
     return record, collected.data
+
+
+def given_data(cfg: LearnerConfig, part: DaggerDataset, record: dict) -> DaggerDataset:
+    """Round 0's demonstrations and the pairs of the logs or datasets ``data:=`` names (their number recorded)."""
+    given = load_dagger_dataset(comma_list(cfg.data), cfg.env)
+    record["given_samples"] = len(given)
+    return DaggerDataset.concatenate([part, given])
 
 
 def select_best(cfg: LearnerConfig, run: LearnerRun, log) -> Path:

@@ -1,7 +1,7 @@
 """The DAgger dataset: (observation the policy saw, expert action on the true state) pairs.
 
-One format whatever the source: in-process rollouts (:meth:`DaggerDataset.from_trajectories`) or
-run logs recorded through the ROS graph (:func:`load_dagger_dataset`).
+One format whatever the source: in-process rollouts (:meth:`DaggerDataset.from_trajectories`), run logs recorded
+through the ROS graph, or Minari datasets exported from them (:func:`load_dagger_dataset`).
 Aggregation (DAgger's data set union) is :meth:`DaggerDataset.concatenate`, in the order given.
 """
 from __future__ import annotations
@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .export import is_minari, minari_pairs
 from .runlog import RunLog, RunLogError, read_run
 
 
@@ -45,17 +46,26 @@ class DaggerDataset:
 
 
 def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: bool = False) -> DaggerDataset:
-    """Aggregate one or many run logs, in the order given; all must be of the same env."""
+    """Aggregate one or many run logs or Minari datasets ``aril export`` made of them (:func:`aril_ros.export.
+    minari_pairs`; a dataset gives exactly the pairs of its logs), in the order given; all must be of the same env."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not paths:
         raise RunLogError("no run logs given")
-    runs = [read_run(p, allow_interrupted) for p in paths]
-    envs = {run.metadata["env"] for run in runs}
+    parts, envs = [], set()
+    for path in paths:
+        if is_minari(path):
+            fields, env = minari_pairs(path)
+            part = DaggerDataset(**fields)
+        else:
+            run = read_run(path, allow_interrupted)
+            part, env = dataset_of_run(run, path), run.metadata["env"]
+        parts.append(part)
+        envs.add(env)
     if env_id is not None:
         envs.add(env_id)
     if len(envs) > 1:
         raise RunLogError(f"run logs of different envs cannot make one dataset: {sorted(envs)}")
-    return DaggerDataset.concatenate([dataset_of_run(r, p) for p, r in zip(paths, runs)])
+    return DaggerDataset.concatenate(parts)
 
 
 def dataset_of_run(run: RunLog, path) -> DaggerDataset:

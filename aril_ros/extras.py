@@ -12,6 +12,8 @@ RAY = "ray==2.60.*"
 """The ``cluster`` extra: sweeps on Ray (:mod:`aril_ros.sweep`)."""
 FOXGLOVE = "foxglove-sdk==0.30.*"
 """The ``live`` extra: a graph run served to Foxglove as it runs (:mod:`aril_ros.runlog.live`)."""
+MINARI = "minari[hdf5]==0.5.*"
+"""The ``export`` extra: run logs as Minari datasets and back (:mod:`aril_ros.export`)."""
 
 
 def ensure(module: str, requirement: str, purpose: str):

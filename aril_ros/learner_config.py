@@ -37,6 +37,8 @@ class ImitationConfig:
                      low=0.0, high=MAX_EPS)
     rounds: int = arg(10, "rounds of collecting and refitting after round 0 (expert demonstrations)", low=0, high=1000)
     episodes: int = arg(5, "episodes collected per round (1000 steps each)", low=1, high=100_000)
+    data: str = arg("", "comma-separated run logs (.mcap) or Minari datasets from aril export, collected by anyone: "
+                        "their (observation seen, expert action) pairs join round 0's demonstrations")
     delay: int = timing_arg("delay", "dr and aril, in the loop: dr's rounds draw it at random, aril's are timed by a "
                                      "timing adversary trained against each learner")
     drop: float = timing_arg("drop", "dr and aril, in the loop")
