@@ -35,6 +35,7 @@ from .envs import HORIZON
 from .evaluation import EvalConfig, evaluation_task, shipped_job
 from .provenance import cpu, portable, stamp
 from .registry import DEFENSES, PAPER_ENVS, PER_MODE_POLICIES, bundled_file
+from .report.plots import plot_budget_sweeps
 from .report.stats import summarise
 from .sweep import digest_of, run_tasks, session
 from .timing import CHOOSERS, TimingBudget
@@ -190,8 +191,42 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
                                   **({"timing_file": portable(job.timing_file)} if job.timing_file else {})}
             write()  # as each cell finishes: a run stopped resumes from it
     payload = write()
+    for env in comma_list(cfg.envs):
+        plot_sweeps(cfg, payload["table"], env, swept, learned)
     md_path.write_text(markdown(cfg, payload["table"], swept, learned))
     return payload
+
+
+def figure_path(cfg: TimingTableConfig, env: str) -> Path:
+    """Where the table's sweep figure of ``env`` goes: beside ``<out>.md``."""
+    return Path(f"{cfg.out}-{env}.png")
+
+
+def plot_sweeps(cfg: TimingTableConfig, rows: dict, env: str, swept: list[Budget], learned: list[Budget]) -> None:
+    """Return against the budget, one panel per timing attack: each defense's worst cell (mean, 95% interval over the
+    seeds), from its clean return at budget 0; a panel's title names the budgets with a learned chooser."""
+    series = {}
+    for key, row in rows.items():
+        if not key.startswith(f"{env}|") or not row["clean"]:
+            continue
+        kinds = {}
+        for kind in dict.fromkeys(b.kind for b in swept):
+            points = [(0.0, row["clean"]["mean"], row["clean"]["ci95"])]
+            for budget in (b for b in swept if b.kind == kind):
+                entry = row["budgets"][budget.name]
+                if entry["worst"]:
+                    cell = entry["choosers"][entry["worst"]]
+                    points.append((float(budget.label), cell["mean"], cell["ci95"]))
+            kinds[kind] = points
+        series[DEFENSES.get(key.split("|")[1], key.split("|")[1])] = kinds
+    if series:
+        panels = {}
+        for kind in dict.fromkeys(b.kind for b in swept):
+            at = [b.label for b in learned if b.kind == kind]
+            panels[kind] = KINDS[kind] + (f" (learned at {', '.join(at)})" if at else "")
+        plot_budget_sweeps(series, panels,
+                           f"{env}: return under each timing attack's worst chooser (mean, 95% interval over seeds)",
+                           figure_path(cfg, env))
 
 
 def table(cfg: TimingTableConfig, cells: dict, swept: list[Budget], learned: list[Budget]) -> dict:
@@ -217,8 +252,9 @@ def table(cfg: TimingTableConfig, cells: dict, swept: list[Budget], learned: lis
 
 
 def markdown(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: list[Budget]) -> str:
+    md = Path(cfg.out).with_suffix(".md")
     return "\n".join(["# Timing attacks: each defense under its worst timing attack", "",
-                      *sections(cfg, rows, swept, learned, "##")])
+                      *sections(cfg, rows, swept, learned, "##", md)])
 
 
 def report_lines(path: Path, report: Path) -> list[str]:
@@ -232,11 +268,13 @@ def report_lines(path: Path, report: Path) -> list[str]:
     learned = learned_budgets(cfg, swept)
     link = os.path.relpath(path, report.parent)
     return [f"Made by `{payload['command']}` (on {payload['versions']['cpu']}; [`{path}`]({link}) keeps every "
-            "cell).", "", *sections(cfg, table(cfg, payload["cells"], swept, learned), swept, learned, "###")]
+            "cell).", "", *sections(cfg, table(cfg, payload["cells"], swept, learned), swept, learned, "###", report)]
 
 
-def sections(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: list[Budget], heading: str) -> list[str]:
-    """The table's explanation, then per env its table, the learned chooser's beside it and what they show."""
+def sections(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: list[Budget], heading: str,
+             page: Path) -> list[str]:
+    """The table's explanation, then per env its table, its sweep figure (linked from ``page``), the learned
+    chooser's table beside it and what they show."""
     seed_list = comma_list(cfg.training_seeds)
     lines = [f"Return under each timing attack alone (the policy clean otherwise), the worst of fixed, random"
              f"{' and a learned timing adversary (*: at this budget)' if learned else ''} (its initial in brackets: "
@@ -270,6 +308,9 @@ def sections(cfg: TimingTableConfig, rows: dict, swept: list[Budget], learned: l
                         " / ".join(_mean(row["budgets"][b.name]["choosers"].get(c)) for c in CHOOSERS)
                         for b in learned) + " |")
             lines.append("")
+        figure = figure_path(cfg, env)
+        if figure.is_file():
+            lines += [f"![{env}: return vs timing budget]({os.path.relpath(figure, page.parent)})", ""]
         shown = {key.split("|")[1]: row for key, row in rows.items() if key.startswith(f"{env}|")}
         absent = [entry.partition("=")[0] for entry in comma_list(cfg.defenses)
                   if entry.partition("=")[0] not in shown]

@@ -43,6 +43,7 @@ def test_the_timing_table_takes_the_worst_chooser_over_seeds_and_resumes(tmp_pat
     markdown = (tmp_path / "timing.md").read_text()
     assert "| DAgger | " in markdown and "| mine | " in markdown and "observations dropped 0.3*" in markdown
     assert "Not on Swimmer-v5 (no policy file of it there): elsewhere." in markdown
+    assert (tmp_path / "timing-Swimmer-v5.png").is_file() and "](timing-Swimmer-v5.png)" in markdown
     assert "keeps the most return in" in markdown and "the learned timing adversary is the worst chooser" in markdown
     # a rerun keeps every cell; more episodes run every cell again
     lines.clear()

@@ -46,6 +46,28 @@ def plot_sweeps(evals: dict, env: str, mode: str, attacks: list[str], eps0: floa
     plt.close(fig)
 
 
+def plot_budget_sweeps(series: dict[str, dict[str, list[tuple[float, float, float]]]], panels: dict[str, str],
+                       title: str, path: Path) -> None:
+    """One panel per attack kind (``panels``: kind to its title): each row's return (mean, 95% interval) against the
+    budget; ``series[row][kind]`` holds (budget, mean, half-width) points, budget 0 being the row's clean run."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4), squeeze=False)
+    for ax, (kind, panel) in zip(axes[0], panels.items()):
+        for row, kinds in series.items():
+            x, y, ci = (np.array(v, dtype=float) for v in zip(*kinds[kind]))
+            ax.plot(x, y, marker="o", ms=3, label=row)
+            ax.fill_between(x, y - np.nan_to_num(ci), y + np.nan_to_num(ci), alpha=0.15)
+        ax.set_title(panel)
+        ax.set_xlabel("budget (0: clean)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("return")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def plot_rounds(curves: dict, envs: list[str], modes: list[str], path: Path) -> None:
     """One panel per env and mode: each ARIL run's clean return and return under its round's adversary."""
     plt = _pyplot()
