@@ -219,13 +219,7 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
               "| run | rounds | returned | round adversaries |", "|---|---|---|---|"]
     lines += [f"| {name} | {len(c['round']) - 1} | {c['selected']} | {_round_adversaries(c)} |"
               for name, c in payload["aril_rounds"].items()]
-    # the table's own product, kept where `aril timing-table` writes it by default
-    timing = timing_table.report_lines(Path(timing_table.TimingTableConfig().out).with_suffix(".json"), out)
-    if timing:
-        lines += ["", "## Timing attacks", "",
-                  "Observations late or dropped and actions late, each alone, against the defenses above and against "
-                  "defenses trained with a timing budget in their loop (`aril timing-table`, "
-                  "[attacks and defenses](attacks-defenses.md)); not part of this report's run.", "", *timing]
+    lines += timing_section(out)
     lines += ["", "## Performance", "", *performance(payload["benchmarks"]), ""]
     lines += ["## Seeing an attack", ""]
     if gifs:
@@ -243,6 +237,19 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
                   "`python -c \"from aril_ros.policy import load_weights; print(load_weights('FILE')[0]"
                   "['provenance'])\"` (add `, 'adversary'` for an adversary).", ""]
     return "\n".join(lines)
+
+
+def timing_section(out: Path) -> list[str]:
+    """The report's timing section (the report at ``out``), from the table ``aril timing-table`` keeps where it writes
+    it by default; nothing when there is none."""
+    timing = timing_table.report_lines(Path(timing_table.TimingTableConfig().out).with_suffix(".json"), out)
+    if not timing:
+        return []
+    return ["", "## Timing attacks", "",
+            "Observations late or dropped and actions late, each alone, against the defenses above and against "
+            "defenses trained with a timing budget in their loop (`aril timing-table`, "
+            "[attacks and defenses](attacks-defenses.md#timing-attacks)); made apart from this report's run.", "",
+            *timing]
 
 
 HOW_ATTACKS_ASK = (
