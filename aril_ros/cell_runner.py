@@ -29,6 +29,7 @@ from .registry import ATTACKS
 from .runlog import read_run
 from .step import EpisodeStats, summarise_episodes
 from .sweep import Produced, run_tasks
+from .timing import TimingAttack
 
 GRAPH_RUN_CPUS = 2
 """What a graph run (a cell through the graph) declares as a sweep task: its five processes work in lockstep, about
@@ -77,7 +78,7 @@ def described(cell: EvalConfig) -> str:
     apart (a scorecard runs aril_a with three adversaries or searches)."""
     return (ATTACKS[cell.attack] + (f" ({Path(cell.attack_file).stem})" if cell.attack_file else "")
             + (f" + search {cell.search}" if cell.search else "")
-            + "".join(f", {name.replace('_', ' ')} {value:g}" for name, value in timing_of(cell).items())
+            + (f", {TimingAttack.of(cell).budget.described()}" if timing_of(cell) else "")
             + (f" ({chooser(cell)})" if timing_of(cell) and cell.timing != "fixed" else ""))
 
 

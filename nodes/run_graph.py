@@ -17,6 +17,7 @@ from pathlib import Path
 
 from aril_ros.args import parse_args, usage
 from aril_ros.registry import PER_MODE_POLICIES, bundled_file
+from aril_ros.timing import TimingBudget
 from aril_ros_nodes.orchestrator import GraphConfig, GraphError, Orchestrator, RunInterrupted
 
 EXAMPLES = """examples:
@@ -52,13 +53,18 @@ def comparison(summary: dict) -> str:
     seeds = f"env seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}"
     return "\n".join([
         f"[run_graph] {summary['env']} {summary['mode']}, {summary['attack']} at eps {summary['eps']:g}"
-        + ("".join(f", {k.replace('_', ' ')} {v}" for k, v in summary["timing"].items() if v)
-           if "timing" in summary else "") + " on "
+        + (timed(summary["timing"]) if "timing" in summary else "") + " on "
         f"{summary['policy']}, {summary['episodes']} episode(s), {seeds}:",
         f"  clean     return {clean['mean_return']:9.1f}   expert loss {clean['mean_expert_loss']:.4f}   ({how})",
         f"  attacked  return {summary['mean_return']:9.1f}   expert loss {summary['mean_expert_loss']:.4f}   "
         f"drop {summary['drop_pct']:+.1f}% of clean",
         f"  log       {summary['record'] or '(not recorded: record:=off)'}"])
+
+
+def timed(record: dict) -> str:
+    """A timing attack's record (:meth:`aril_ros.timing.TimingAttack.record`) as the comparison names it."""
+    budget = TimingBudget(**{field.name: record[field.name] for field in dataclasses.fields(TimingBudget)})
+    return f", {budget.described()}" + (f" ({record['chooser']})" if record["chooser"] != "fixed" else "")
 
 
 def main(argv) -> int:
