@@ -1,6 +1,6 @@
 """run_graph.py live:=: a real graph run served over Foxglove's WebSocket protocol (foxglove-sdk's server), watched by
-a client of that protocol written here from its specification: every step of every step topic arrives, byte for byte
-what the run log holds, and the per-step figures add up to the episodes' returns."""
+a client of that protocol written here from its specification: every step of every step topic and every camera frame
+arrives, byte for byte what the run log holds, and the per-step figures add up to the episodes' returns."""
 from __future__ import annotations
 
 import json
@@ -13,7 +13,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from aril_ros.runlog.layout import STEP_CHANNELS
+from aril_ros.runlog.layout import CAMERA_CHANNEL, STEP_CHANNELS
 from aril_ros.runlog.live import LIVE_CHANNEL
 from tests.conftest import policy_files, run_graph, summary_of
 
@@ -84,7 +84,8 @@ def test_a_viewer_of_a_live_run_receives_every_step_as_the_log_holds_it(tmp_path
     # live:=wait: the first step waits for the viewer, so that it sees every step
     summary = summary_of(run_graph("mode:=sensory", "env:=HalfCheetah-v5", f"policy:={policy}", f"expert:={expert}",
                                    "attack:=random", "eps:=0.1", "episodes:=2", "horizon:=30", "baseline:=false",
-                                   "live:=wait", f"live_port:={port}", f"record:={log}"))
+                                   "live:=wait", f"live_port:={port}", f"record:={log}", "render:=true",
+                                   "render_every:=10", "render_size:=64x48"))
     viewer.join(timeout=30)
     assert not viewer.is_alive() and viewer.error is None, viewer.error
     advertised = {channel["topic"]: channel for channel in viewer.advertised.values()}
@@ -100,6 +101,7 @@ def test_a_viewer_of_a_live_run_receives_every_step_as_the_log_holds_it(tmp_path
         if channel in logged:  # the run's step topics (a run without a timing attack has no /attack/timing)
             assert viewer.received[channel] == logged[channel], channel
     assert len(viewer.received["/observation"]) == 60
+    assert viewer.received[CAMERA_CHANNEL] == logged[CAMERA_CHANNEL] and len(logged[CAMERA_CHANNEL]) == 6
 
     figures = [json.loads(payload) for _, payload in viewer.received[LIVE_CHANNEL]]
     assert [(f["episode"], f["step"]) for f in figures] == [(e, s) for e in range(2) for s in range(30)]
@@ -121,7 +123,7 @@ def test_the_shipped_layout_reads_only_what_a_run_serves_or_logs():
     import re
 
     from aril_ros import protocol as P
-    from aril_ros.runlog.layout import CAMERA_CHANNEL, VALUES
+    from aril_ros.runlog.layout import VALUES
     from aril_ros.runlog.live import LIVE_SCHEMA
     from tests.conftest import ROOT
 
