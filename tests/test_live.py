@@ -141,3 +141,29 @@ def test_the_shipped_layout_reads_only_what_a_run_serves_or_logs():
     assert images == [CAMERA_CHANNEL] and P.CAMERA_TYPE.endswith("CompressedImage")
     panels = set(re.findall(r'"(\w+![\w-]+)"', json.dumps(layout["layout"])))
     assert panels == set(layout["configById"])  # every configured panel is placed, and only those
+
+
+def test_a_viewer_that_shows_only_the_camera_counts_as_watching():
+    """A viewer subscribes only to what its panels show: one with only the image panel must start a live:=wait run."""
+    from websockets.sync.client import connect
+
+    from aril_ros import protocol as P
+    from aril_ros.runlog.live import LiveView
+
+    live = LiveView("127.0.0.1", 0, P.STEP_TOPICS, camera=True)
+    try:
+        assert not live.watched()
+        with connect(live.url, subprotocols=[SUBPROTOCOL], open_timeout=5) as ws:
+            advertised = {}
+            while not advertised:
+                message = json.loads(ws.recv())
+                if message["op"] == "advertise":
+                    advertised = {channel["topic"]: channel["id"] for channel in message["channels"]}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": advertised["/sim/camera/image/compressed"]}]}))
+            deadline = time.monotonic() + 10
+            while not live.watched() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert live.watched()
+    finally:
+        live.close()

@@ -63,8 +63,9 @@ class LiveView:
         return f"ws://{self.host}:{self.server.port}"
 
     def watched(self) -> bool:
-        """Whether a viewer has subscribed to any channel."""
-        return any(channel.has_sinks() for channel in [*self.steps.values(), self.figures])
+        """Whether a viewer has subscribed to any channel (a viewer subscribes only to what its panels show)."""
+        channels = [*self.steps.values(), *self.probes.values(), self.figures, *([self.camera] if self.camera else [])]
+        return any(channel.has_sinks() for channel in channels)
 
     def show_step(self, stamp_ns: int, messages: dict[str, bytes], probes, figures: dict, episode: EpisodeStats) -> None:
         """A written step: its messages (raw CDR by topic), its probes (each a dict of raw CDR by topic, in the
