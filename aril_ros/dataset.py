@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .export import is_minari, minari_pairs
+from .export import minari_data, minari_pairs
 from .runlog import RunLog, RunLogError, read_run
 
 
@@ -53,7 +53,7 @@ def load_dagger_dataset(paths, env_id: str | None = None, allow_interrupted: boo
         raise RunLogError("no run logs given")
     parts, envs = [], set()
     for path in paths:
-        if is_minari(path):
+        if minari_data(path) is not None:
             fields, env = minari_pairs(path)
             part = DaggerDataset(**fields)
         else:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -105,11 +106,16 @@ def shipped_job(job: dict) -> dict:
     return {k: shipped(names.get(k, v)) if k in FILE_FIELDS else v for k, v in job.items()}
 
 
+def evaluate_each(jobs: list[dict], workers: int, address: str, log, label: str = "evaluations"
+                  ) -> Iterator[tuple[int, dict]]:
+    """Each job's :func:`evaluate` result as ``(index, result)`` as it finishes, run as sweep tasks (``workers`` CPUs
+    of a local Ray, or the cluster at ``address``; one worker: in this process, in order)."""
+    return run_tasks(evaluation_task, [(shipped_job(job),) for job in jobs], workers, address, label=label, log=log)
+
+
 def evaluate_all(jobs: list[dict], workers: int, address: str, log, label: str = "evaluations") -> list[dict]:
-    """Each job's :func:`evaluate` result, in order, run as sweep tasks (``workers`` CPUs of a local Ray, or the
-    cluster at ``address``; one worker: in this process)."""
+    """Each job's :func:`evaluate` result, in order (:func:`evaluate_each`)."""
     results: list[dict] = [{}] * len(jobs)
-    for index, result in run_tasks(evaluation_task, [(shipped_job(job),) for job in jobs], workers, address,
-                                   label=label, log=log):
+    for index, result in evaluate_each(jobs, workers, address, log, label):
         results[index] = result
     return results

@@ -160,10 +160,11 @@ def _datasets_root(out: Path):
             os.environ["MINARI_DATASETS_PATH"] = before
 
 
-def is_minari(path: str | Path) -> bool:
-    """Whether ``path`` is a Minari dataset: its folder (holding ``data/``) or its ``data`` folder."""
+def minari_data(path: str | Path) -> Path | None:
+    """The ``data`` folder of the Minari dataset ``path`` names (its folder, holding ``data/``, or that ``data``
+    folder itself); None when ``path`` is no Minari dataset."""
     path = Path(path)
-    return (path / "data" / "metadata.json").is_file() or (path / "metadata.json").is_file()
+    return next((data for data in (path / "data", path) if (data / "metadata.json").is_file()), None)
 
 
 def minari_pairs(path: str | Path) -> tuple[dict[str, np.ndarray | list], str]:
@@ -172,7 +173,9 @@ def minari_pairs(path: str | Path) -> tuple[dict[str, np.ndarray | list], str]:
     log, ``source``: the dataset and that log), and the dataset's env."""
     minari = ensure("minari", MINARI, "the export extra, for Minari datasets")
     path = Path(path)
-    data = path / "data" if (path / "data" / "metadata.json").is_file() else path
+    data = minari_data(path)
+    if data is None:
+        raise RunLogError(f"{path} is no Minari dataset (no metadata.json in it or in its data folder)")
     dataset = minari.MinariDataset(str(data))
     runs = dataset.storage.metadata.get(KEY, {}).get("runs")
     if not runs:

@@ -32,12 +32,13 @@ from . import seeds
 from .adversary import AdversaryConfig, ready_adversaries
 from .args import arg, comma_list
 from .envs import HORIZON
-from .evaluation import EvalConfig, evaluation_task, shipped_job
+from .evaluation import EvalConfig, evaluate_each
+from .files import write_atomically
 from .provenance import cpu, portable, stamp
 from .registry import DEFENSES, PAPER_ENVS, PER_MODE_POLICIES, bundled_file
 from .report.plots import plot_budget_sweeps
 from .report.stats import summarise
-from .sweep import digest_of, run_tasks, session
+from .sweep import digest_of, session
 from .timing import CHOOSERS, TimingBudget
 
 KINDS = {"delay": "observations late", "action_delay": "actions late", "drop": "observations dropped"}
@@ -177,14 +178,15 @@ def timing_table(cfg: TimingTableConfig, log=print) -> dict:
     def write() -> dict:
         payload = {"cells": dict(sorted(cells.items())), **made, "table": table(cfg, cells, swept, learned)}
         json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(payload, indent=1) + "\n")
+        # in one step: a run killed while writing keeps the cells it had, not half a file
+        write_atomically(json_path, lambda partial: partial.write_text(json.dumps(payload, indent=1) + "\n"))
         return payload
 
     with session(cfg.workers, cfg.address):
         ready_adversaries(wanted, False, log, cfg.workers, cfg.address)
         keys = list(jobs)
-        for index, result in run_tasks(evaluation_task, [(shipped_job(asdict(jobs[key][0])),) for key in keys],
-                                       cfg.workers, cfg.address, label="timing-table cells", log=log):
+        for index, result in evaluate_each([asdict(jobs[key][0]) for key in keys], cfg.workers, cfg.address, log,
+                                           label="timing-table cells"):
             job, settings = jobs[keys[index]]
             cells[keys[index]] = {"returns": result["returns"], "mean_return": result["mean_return"],
                                   "settings": settings, "policy": portable(job.policy),
@@ -205,12 +207,13 @@ def figure_path(cfg: TimingTableConfig, env: str) -> Path:
 def plot_sweeps(cfg: TimingTableConfig, rows: dict, env: str, swept: list[Budget], learned: list[Budget]) -> None:
     """Return against the budget, one panel per timing attack: each defense's worst cell (mean, 95% interval over the
     seeds), from its clean return at budget 0; a panel's title names the budgets with a learned chooser."""
+    kinds_swept = list(dict.fromkeys(b.kind for b in swept))
     series = {}
     for key, row in rows.items():
         if not key.startswith(f"{env}|") or not row["clean"]:
             continue
         kinds = {}
-        for kind in dict.fromkeys(b.kind for b in swept):
+        for kind in kinds_swept:
             points = [(0.0, row["clean"]["mean"], row["clean"]["ci95"])]
             for budget in (b for b in swept if b.kind == kind):
                 entry = row["budgets"][budget.name]
@@ -218,10 +221,11 @@ def plot_sweeps(cfg: TimingTableConfig, rows: dict, env: str, swept: list[Budget
                     cell = entry["choosers"][entry["worst"]]
                     points.append((float(budget.label), cell["mean"], cell["ci95"]))
             kinds[kind] = points
-        series[DEFENSES.get(key.split("|")[1], key.split("|")[1])] = kinds
+        label = key.split("|")[1]
+        series[DEFENSES.get(label, label)] = kinds
     if series:
         panels = {}
-        for kind in dict.fromkeys(b.kind for b in swept):
+        for kind in kinds_swept:
             at = [b.label for b in learned if b.kind == kind]
             panels[kind] = KINDS[kind] + (f" (learned at {', '.join(at)})" if at else "")
         plot_budget_sweeps(series, panels,
