@@ -41,6 +41,8 @@ def train_learner(cfg: LearnerConfig, log=print, collector: Collector | None = N
         adversary = train_round_adversary(cfg, run, r, log)
         adversary_seconds = time.time() - started
         record, part = collect(collector, cfg, run, r, adversary)
+        if r > 0 and cfg.mix:
+            part = collect_mix(collector, cfg, run, r, record, part)
         if r == 0 and cfg.data:
             part = given_data(cfg, part, record)
         if r < cfg.rounds:
@@ -77,6 +79,24 @@ def collect(collector: Collector, cfg: LearnerConfig, run: LearnerRun, r: int, a
     return record, collected.data
 
 
+def collect_mix(collector: Collector, cfg: LearnerConfig, run: LearnerRun, r: int, record: dict,
+                part: DaggerDataset) -> DaggerDataset:
+    """Beyond the paper: pi_r also collects under each ``mix:=`` attack, on the round's own env seeds, so its data
+    covers the states DR's noise, the gradient attacks or a clean run reach beside those f_r drives it to (a learner
+    robust to its own adversary stayed open to query attacks: results/aril_a_tuning.md); each one's return is in
+    the round's record (``mix``), what ``select:=worst`` judges by."""
+    learner, parts = run.learner(r), [part]
+    for name in comma_list(cfg.mix):
+        spec = RoundSpec(env=cfg.env, mode="clean" if name == "clean" else run.mode,
+                         attack="none" if name == "clean" else name, eps=0.0 if name == "clean" else cfg.eps,
+                         policy=str(run.policy_file(r)), expert=cfg.expert, attack_file="", episodes=cfg.episodes,
+                         seed=seeds.collection(cfg.seed, r), record=run.dir / f"round-{r}-{name}.mcap")
+        collected = collector(run, r, learner, spec)
+        record.setdefault("mix", {})[name] = float(collected.returns.mean())
+        parts.append(collected.data)
+    return DaggerDataset.concatenate(parts)
+
+
 def given_data(cfg: LearnerConfig, part: DaggerDataset, record: dict) -> DaggerDataset:
     """Round 0's demonstrations and the pairs of the logs or datasets ``data:=`` names (their number recorded)."""
     given = load_dagger_dataset(comma_list(cfg.data), cfg.env)
@@ -86,11 +106,24 @@ def given_data(cfg: LearnerConfig, part: DaggerDataset, record: dict) -> DaggerD
 
 def select_best(cfg: LearnerConfig, run: LearnerRun, log) -> Path:
     """The theorem (like DAgger's) bounds the best of the learners pi_1..pi_R, each judged here by its
-    own round: its return under the attack of that round (for ARIL, the adversary trained against it)."""
-    best = max(run.rounds[1:], key=lambda rec: rec["return"])
+    own round: its return under the attack of that round (for ARIL, the adversary trained against it); with
+    ``select:=worst``, by its worst return over that attack and every ``mix:=`` one (its own adversary alone judged
+    it in ARIL's favour: the learner picked was often the one whose adversary failed, results/aril_a_tuning.md)."""
+    best = max(run.rounds[1:], key=lambda rec: judged_return(cfg, rec))
     timing = f", timed by {run.timing_chooser} within {run.timing.described()}" if run.timing.any else ""
-    out = run.save_selected(best["round"], "the learner with the best return in its own round"
-                            + (f" ({run.mode}, {run.attack} eps {cfg.eps}{timing})" if run.attack != "none"
-                               else f" (clean{timing})"))
-    log(json.dumps({"out": str(out), "selected": f"pi_{best['round']}", "return": round(best["return"], 1)}))
+    attack = (f" ({run.mode}, {run.attack} eps {cfg.eps}{timing})" if run.attack != "none" else f" (clean{timing})")
+    if cfg.select == "worst":
+        selection = f"the learner with the best worst return in its own round{attack} and under {cfg.mix}"
+    else:
+        selection = "the learner with the best return in its own round" + attack
+    out = run.save_selected(best["round"], selection)
+    log(json.dumps({"out": str(out), "selected": f"pi_{best['round']}", "return": round(judged_return(cfg, best), 1)}))
     return out
+
+
+def judged_return(cfg: LearnerConfig, record: dict) -> float:
+    """A round's learner as ``select:=`` judges it: its return under the round's attack, or the worst of that and
+    its returns under the ``mix:=`` attacks."""
+    if cfg.select == "worst":
+        return min(record["return"], *record.get("mix", {}).values())
+    return record["return"]

@@ -18,6 +18,10 @@ from .timing import TimingBudget, timing_arg
 ALGORITHMS = {"dagger": "none", "dart": "none", "dr": "random", "aril": "aril_a"}  # and the attack in the loop
 ROUND_ATTACKS = ("spsa", "random")
 """Attacks that may be ARIL's f_t beside the trained adversaries (round_attacks:=): black-box, as ARIL-A is."""
+MIX_ATTACKS = ("clean", "random", "fgsm", "fgsm_k", "spsa")
+"""What pi_t may also collect under each round beside f_t (mix:=); the white-box ones attack the round's own
+learner, whose weights the training has."""
+SELECTIONS = ("own", "worst")
 SOURCES = ("inprocess", "graph")
 
 
@@ -43,6 +47,12 @@ class ImitationConfig:
                                      "timing adversary trained against each learner")
     drop: float = timing_arg("drop", "dr and aril, in the loop")
     action_delay: int = timing_arg("action_delay", "dr and aril, in the loop")
+    mix: str = arg("", "dr and aril, beyond the paper: attacks (comma-separated: clean, random, fgsm, fgsm_k, spsa) "
+                       "under which pi_t also collects each round, beside f_t, as many episodes each on the same env "
+                       "seeds; all their pairs join the aggregated data set")
+    select: str = arg("own", "which pi_t is returned: own (the paper's: the best return under its own round's f_t) or "
+                             "worst (the best of its worst return over f_t and every mix:= attack, on the round's "
+                             "episodes)")
 
 
 @dataclass
@@ -123,6 +133,18 @@ def checked(cfg: LearnerConfig) -> LearnerConfig:
             raise ValueError(f"round_attacks:= takes black-box attacks ({', '.join(ROUND_ATTACKS)}), got {name!r}")
     if cfg.round_attacks and (cfg.algorithm != "aril" or cfg.warm_start):
         raise ValueError("round_attacks:= is for algorithm:=aril without warm_start (which needs a learned f_{t-1})")
+    for name in comma_list(cfg.mix):
+        if name not in MIX_ATTACKS:
+            raise ValueError(f"mix:= takes {', '.join(MIX_ATTACKS)}, got {name!r}")
+    if cfg.mix and (ALGORITHMS[cfg.algorithm] == "none" or cfg.mode not in ATTACKED_MODES):
+        raise ValueError(f"mix:= adds attacked collections to dr's and aril's rounds in mode:=sensory or physical "
+                         f"(got algorithm:={cfg.algorithm} mode:={cfg.mode})")
+    if cfg.mix and timed:
+        raise ValueError("mix:= collects untimed: give it without a timing budget (delay:=, drop:=, action_delay:=)")
+    if cfg.select not in SELECTIONS:
+        raise ValueError(f"select:= must be one of {', '.join(SELECTIONS)}, got {cfg.select!r}")
+    if cfg.select == "worst" and not cfg.mix:
+        raise ValueError("select:=worst judges each learner over f_t and the mix:= attacks: name them in mix:=")
     if cfg.source not in SOURCES:
         raise ValueError(f"source:= must be one of {', '.join(SOURCES)}, got {cfg.source!r}")
     if cfg.source == "graph" and cfg.algorithm == "dart":

@@ -33,9 +33,10 @@ from .provenance import now, stamp
 from .rollout import RolloutEngine
 from .timing import TimingAttack
 
-NOT_RECORDED = ("run_dir", "out", "threads", "workers", "address", "rounds", "eval_episodes", "source")
-"""Settings a run may be resumed with changed: where and how fast it runs, how long it goes on, and what only
-its log reports (the clean evaluations); the data set and the learners do not depend on them."""
+NOT_RECORDED = ("run_dir", "out", "threads", "workers", "address", "rounds", "eval_episodes", "source", "select")
+"""Settings a run may be resumed with changed: where and how fast it runs, how long it goes on, what only
+its log reports (the clean evaluations) and which learner it returns; the data set and the learners do not depend
+on them."""
 
 
 class LearnerRun:
@@ -127,6 +128,7 @@ class LearnerRun:
         return (f"[train-learner {self.name}] round {r}: {who} return {record['return']:8.1f} ± "
                 f"{record['return_std']:6.1f}"
                 + (f" (clean {record['clean_return']:.1f})" if "clean_return" in record else "")
+                + "".join(f" ({name} {value:.1f})" for name, value in record.get("mix", {}).items())
                 + (f" (noisy expert {record['collected_return']:.1f}, noise trace {record['noise_trace']:.4f})"
                    if "noise_trace" in record else "")
                 + f"  expert loss {record['expert_loss']:.4f}"

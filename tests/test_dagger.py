@@ -231,6 +231,48 @@ def test_query_attacks_compete_with_the_trained_adversaries_for_f_t(tmp_path):
         train_learner(small(tmp_path, algorithm="aril", round_attacks="spsa", warm_start=True), log=quiet)
 
 
+@pytest.mark.slow
+def test_mixed_rounds_collect_under_each_attack_and_select_by_the_worst(tmp_path):
+    """mix:= has pi_r also collect under each named attack on the round's own env seeds, every pair aggregated and
+    each return recorded; select:=worst returns the learner whose worst return over f_r and them is best, and a
+    finished run can be selected again by another rule without collecting anything."""
+    import dataclasses
+
+    from aril_ros import collectors, seeds
+
+    seen = []
+
+    def counting(run, r, learner, spec):
+        seen.append((r, spec.mode, spec.attack, spec.eps, spec.seed))
+        return collectors.engine(run, r, learner, spec)
+
+    cfg = small(tmp_path, algorithm="dr", mode="sensory", eps=0.05, mix="clean,fgsm_k", select="worst")
+    out = train_learner(cfg, log=quiet, collector=counting)
+    assert seen == [(0, "clean", "none", 0.0, seeds.collection(0, 0))] + [
+        call for r in (1, 2) for call in ((r, "sensory", "random", 0.05, seeds.collection(0, r)),
+                                          (r, "clean", "none", 0.0, seeds.collection(0, r)),
+                                          (r, "sensory", "fgsm_k", 0.05, seeds.collection(0, r)))]
+    rounds = json.loads((tmp_path / "run" / "state.json").read_text())["rounds"]
+    assert [sorted(r.get("mix", {})) for r in rounds] == [[], ["clean", "fgsm_k"], ["clean", "fgsm_k"]]
+    with np.load(tmp_path / "run" / "data.npz") as data:
+        assert list(np.bincount(data["round"])) == [1000, 3000]  # round 1: under noise, clean and under FGSM^k
+    worst = {r["round"]: min(r["return"], *r["mix"].values()) for r in rounds[1:]}
+    provenance = load_policy(out).meta.provenance
+    assert provenance["selected"] == f"pi_{max(worst, key=worst.get)}"
+    assert "best worst return" in provenance["selection"] and "clean,fgsm_k" in provenance["selection"]
+
+    seen.clear()  # the same run selected by the paper's rule: nothing collected again
+    again = train_learner(dataclasses.replace(cfg, select="own", out=str(tmp_path / "own.pt")), log=quiet,
+                          collector=counting)
+    own = max(rounds[1:], key=lambda r: r["return"])["round"]
+    assert seen == [] and load_policy(again).meta.provenance["selected"] == f"pi_{own}"
+    for bad, match in ((dict(mix="fgsm_k,teleport"), "mix:= takes"), (dict(select="worst"), "name them in mix"),
+                       (dict(algorithm="dagger", mix="random"), "dr's and aril's rounds"),
+                       (dict(select="best"), "select:= must be")):
+        with pytest.raises(ValueError, match=match):
+            train_learner(small(tmp_path / "bad", **{"algorithm": "dr", "mode": "sensory", **bad}), log=quiet)
+
+
 def test_the_rounds_collect_with_the_collector_they_are_given(tmp_path):
     """A collector passed in runs every round, each as its RoundSpec says (round 0: the expert, clean), and its own
     figures go into the round's record."""
