@@ -42,6 +42,47 @@ def test_one_producer_of_cells_gives_numpys_figures_and_one_rule_picks_the_worst
     assert worst_attack(cells, among=("random", "aril_a")) == "aril_a" and worst_attack({}) is None
 
 
+def test_the_top_two_defenses_are_compared_seed_by_seed_and_unseparated_cells_named():
+    """A cell's top two by their worst attack; the first's lead as the difference of their returns seed by seed,
+    with a Student-t interval over seeds; a cell is separated only when that interval leaves 0 out (one seed never
+    is), and the report names the cells that are not."""
+    from aril_ros.report import Evaluated, leads
+    from aril_ros.report.jobs import Key
+    from aril_ros.report.stats import paired_difference
+    from aril_ros.report.text import leads_lines
+
+    lead = paired_difference({0: 110.0, 1: 130.0, 2: 120.0}, {0: 100.0, 1: 110.0, 2: 120.0})
+    assert lead["difference"] == 10.0 and lead["seeds"] == [0, 1, 2]
+    assert lead["ci95"] == pytest.approx(4.303 * 10.0 / np.sqrt(3)) and not lead["separated"]  # [-14.8, 34.8]
+    assert paired_difference({0: 110.0, 1: 131.0}, {0: 100.0, 1: 120.0, 2: 0.0})["separated"]  # seeds 0, 1: 10, 11
+    assert not paired_difference({0: 200.0}, {0: 100.0})["separated"]  # one seed: no interval
+
+    def evaluated(returns_of):  # every defense clean and under every threat, per seed, one episode each
+        plan, returns = [], []
+        for (env, defense, seed), worst in returns_of.items():
+            for attack in ("none", *THREATS):
+                plan.append((Key(env, "physical", defense, attack, 0.0 if attack == "none" else 1.0, seed), {}))
+                returns.append([worst if attack == "aril_a" else worst + 100.0])
+        return Evaluated({}, {}, {}, plan, returns, {}, [])
+
+    seeds = (0, 1, 2)
+    done = evaluated({**{("Swimmer-v5", "dr", s): 50.0 + s for s in seeds},  # DR leads ARIL by 40 on every seed
+                      **{("Swimmer-v5", "aril", s): 10.0 + s for s in seeds},
+                      **{("Swimmer-v5", "gail", s): -5.0 for s in seeds},
+                      **{("Ant-v5", "aril", s): [900.0, 1500.0, 700.0][s] for s in seeds},  # ARIL first by 33 on
+                      **{("Ant-v5", "dr", s): [1000.0, 1000.0, 1000.0][s] for s in seeds}})  # average, not separated
+    top = leads(done, ["Swimmer-v5", "Ant-v5"], ["physical"])
+    swimmer, ant = top[("Swimmer-v5", "physical")], top[("Ant-v5", "physical")]
+    assert (swimmer["first"], swimmer["second"], swimmer["difference"], swimmer["separated"]) == ("dr", "aril", 40.0,
+                                                                                                   True)
+    assert swimmer["first_mean"] == 51.0 and swimmer["ci95"] == 0.0
+    assert (ant["first"], ant["second"], ant["separated"]) == ("aril", "dr", False)
+    assert ant["difference"] == pytest.approx(100.0 / 3)
+    text = "\n".join(leads_lines({"top_two": {f"{e} {m}": v for (e, m), v in top.items()}}))
+    assert "| Swimmer-v5 physical | DR (51) | ARIL (11) | +40 [+40, +40] | 3 | yes |" in text
+    assert "cannot separate the top two in 1 of 2 cells: Ant-v5 physical (ARIL or DR)." in text
+
+
 @pytest.mark.slow
 def test_attack_and_defense_tables_print_the_same_cells_as_the_report(tmp_path, monkeypatch):
     from aril_ros import experiments
@@ -237,3 +278,37 @@ def test_the_report_runs_only_performance_benchmarks_with_its_own_arguments():
 
     ours = {name for name in plugins.names(GROUP) if plugins.value(GROUP, name).startswith(("aril_ros", "benchmarks."))}
     assert ours == set(arguments(1000))
+
+
+@pytest.mark.slow
+def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, monkeypatch):
+    """more_seeds:= trains and evaluates those seeds of every defense only in the cells whose top two the first
+    seeds leave unseparated (one seed leaves every cell so), and the report says where."""
+    import shutil
+
+    from aril_ros import dagger, gail
+
+    def copy_bundled(cfg, log):  # stands in for training: another seed starts as a copy of seed 0
+        name = "gail" if isinstance(cfg, gail.GailConfig) else cfg.algorithm
+        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
+        if not isinstance(cfg, gail.GailConfig):
+            Path(cfg.run_dir).mkdir(parents=True)
+        return cfg.out
+
+    monkeypatch.setattr(dagger, "train_learner", copy_bundled)
+    monkeypatch.setattr(gail, "train_gail", copy_bundled)
+    cfg = ReportConfig(envs="Swimmer-v5", modes="physical", seeds="0", more_seeds="1", episodes=2, sweep_episodes=1,
+                       horizon=30, sweep_scales="2", sweep_attacks="random", adversary_steps=2048, perf=False,
+                       workers=1, work_dir=str(tmp_path / "work"), out=str(tmp_path / "results.md"))
+    logged = []
+    build_report(cfg, log=lambda *a, **k: logged.append(str(a[0]) if a else ""))
+    payload = json.loads((tmp_path / "results" / "report.json").read_text())
+    text = (tmp_path / "results.md").read_text()
+    assert any("1 cells whose top two the seeds 0 cannot separate get seeds 1: Swimmer-v5 physical" in line
+               for line in logged)
+    assert payload["seeds_per_cell"] == {"Swimmer-v5 physical": [0, 1]}
+    assert {e["key"]["seed"] for e in payload["evaluations"] if e["key"]["defense"] == "aril"} == {0, 1}
+    lead = payload["top_two"]["Swimmer-v5 physical"]
+    assert lead["seeds"] == [0, 1] and "## Which defense leads" in text
+    assert "and 1 too where those could not separate a cell's top two defenses: Swimmer-v5 physical" in text

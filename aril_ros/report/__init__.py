@@ -62,10 +62,10 @@ from ..seeds import DEFENSE_TABLE
 from ..sweep import session
 from .artifacts import Artifacts, aril_rounds
 from .compute import compute_summary
-from .jobs import by_cell, digest, evaluated_on, evaluation_plan, evaluations_json, run_jobs
+from .jobs import by_cell, digest, evaluated_on, evaluation_plan, evaluations_json, run_jobs, seed_means
 from .perf import run_benchmarks
 from .plots import plot_figures
-from .tables import make_tables
+from .tables import make_tables, table_cells, top_two
 from .text import report_markdown
 
 __all__ = ["ReportConfig", "build_report"]
@@ -88,6 +88,9 @@ class ReportConfig:
     envs: str = arg(",".join(PAPER_ENVS), "comma-separated env ids")
     modes: str = arg(",".join(ATTACKED_MODES), "comma-separated attack modes")
     seeds: str = arg("", "training seeds per defense (seed 0: the bundled policies; others are trained)")
+    more_seeds: str = arg("", "training seeds added, for every defense, to each env and mode whose top two defenses "
+                              "seeds:= cannot separate (the 95% interval of their difference over seeds holds 0): "
+                              "compute spent where it separates")
     episodes: int = arg(0, f"deterministic evaluation episodes per table cell and seed (env seeds "
                            f"{DEFENSE_TABLE}...)", low=0, high=100_000)
     sweep_episodes: int = arg(0, "episodes per eps-sweep point and seed", low=0, high=100_000)
@@ -152,6 +155,42 @@ def render_gifs(envs: list[str], modes: list[str], figures_dir: Path, log) -> li
             for env in envs for mode in modes]
 
 
+@dataclass
+class Evaluated:
+    """What a set of (defense, env, mode, seed) combos gave: their files, the evaluation plan and its per-episode
+    returns, how many evaluations ran and were read from the cache, and how each distinct one ran."""
+
+    policies: dict
+    adversaries: dict
+    surrogates: dict
+    plan: list
+    returns: list
+    counts: dict
+    runs: list
+
+
+def evaluated(cfg: ReportConfig, store: Artifacts, combos: list[tuple], eps: dict, sweep_attacks: list[str],
+              log) -> Evaluated:
+    """Each combo's policy (trained when not bundled), the ARIL-A against it and DAgger's surrogate, then every
+    evaluation of the plan, from the cache or run (:func:`.jobs.run_jobs`)."""
+    policies = store.policies(combos)
+    adversaries = store.adversaries(policies, eps)
+    surrogates = store.surrogates(policies, eps, cfg.horizon)
+    plan = evaluation_plan(policies, adversaries, surrogates, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
+                           scales_of(cfg), cfg.horizon)
+    returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
+                                     cfg.address, cfg.fresh, log)
+    return Evaluated(policies, adversaries, surrogates, plan, returns, counts, runs)
+
+
+def leads(done: Evaluated, envs: list[str], modes: list[str]) -> dict[tuple, dict | None]:
+    """Per (env, mode), its top two defenses and the first's lead over the second, seed by seed
+    (:func:`.tables.top_two`)."""
+    evals, means = by_cell(done.plan, done.returns), seed_means(done.plan, done.returns)
+    return {(env, mode): top_two(table_cells(evals, env, mode), means.get((env, mode), {}))
+            for env in envs for mode in modes}
+
+
 def build_report(cfg: ReportConfig, log=print) -> Path:
     cfg, started = resolved(cfg), time.time()
     envs, modes, training_seeds = comma_list(cfg.envs), comma_list(cfg.modes), [int(s) for s in comma_list(cfg.seeds)]
@@ -164,38 +203,50 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     benchmarks = run_benchmarks(cfg.bench_steps, log) if cfg.perf else {}
 
     # 2. each defense's policy and the ARIL-A against it, per env, mode and training seed; 3. the evaluations, from
-    # the cache or run; all as tasks of one Ray
+    # the cache or run; all as tasks of one Ray. Then, with more_seeds, the same again on the cells whose top two
+    # defenses the first seeds could not separate
     eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
+    combos = [(defense, env, mode, seed) for env in envs for mode in modes for defense in PAPER_DEFENSES
+              for seed in training_seeds]
     with session(cfg.workers, cfg.address):
         store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
-        policies = store.policies([(defense, env, mode, seed) for env in envs for mode in modes
-                                   for defense in PAPER_DEFENSES for seed in training_seeds])
-        adversaries = store.adversaries(policies, eps)
-        surrogates = store.surrogates(policies, eps, cfg.horizon)
-        plan = evaluation_plan(policies, adversaries, surrogates, eps, cfg.episodes, cfg.sweep_episodes,
-                               sweep_attacks, scales_of(cfg), cfg.horizon)
-        returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
-                                            cfg.address, cfg.fresh, log)
-    evals = by_cell(plan, returns)
-    compute = compute_summary({p for p in policies.values() if p}, {a for a in adversaries.values() if a},
-                              [run.get("seconds") for run in runs])
+        done = evaluated(cfg, store, combos, eps, sweep_attacks, log)
+        more = [int(s) for s in comma_list(cfg.more_seeds)]
+        unsettled = [cell for cell, lead in leads(done, envs, modes).items()
+                     if not (lead or {}).get("separated")] if more else []
+        if unsettled:
+            log(f"[report] {len(unsettled)} cells whose top two the seeds {cfg.seeds} cannot separate get seeds "
+                f"{cfg.more_seeds}: " + ", ".join(f"{env} {mode}" for env, mode in unsettled), flush=True)
+            combos += [(defense, env, mode, seed) for env, mode in unsettled for defense in PAPER_DEFENSES
+                       for seed in more]
+            first = done
+            done = evaluated(cfg, store, combos, eps, sweep_attacks, log)
+            done.counts = {"run": first.counts["run"] + done.counts["run"],
+                           "cached": done.counts["cached"] - first.counts["run"]}
+    evals = by_cell(done.plan, done.returns)
+    compute = compute_summary({p for p in done.policies.values() if p}, {a for a in done.adversaries.values() if a},
+                              [run.get("seconds") for run in done.runs])
 
     # 4. tables, figures, the JSON and the text
     cells, tables, overall = make_tables(evals, envs, modes, eps, store.missing)
-    curves = aril_rounds(policies)
+    top = leads(done, envs, modes)
+    curves = aril_rounds(done.policies)
     plot_figures(evals, curves, envs, modes, sweep_attacks, eps, figures_dir)
     gifs = render_gifs(comma_list(cfg.render_envs), modes, figures_dir, log) if cfg.render else []
-    payload = {**made, "budget": cfg.budget, "seconds": round(time.time() - started, 1), "evaluations_run": counts,
-               "evaluated_on": evaluated_on(runs), "compute": compute,
+    payload = {**made, "budget": cfg.budget, "seconds": round(time.time() - started, 1),
+               "evaluations_run": done.counts, "evaluated_on": evaluated_on(done.runs), "compute": compute,
                "envs": envs, "modes": modes, "seeds": training_seeds,
+               "seeds_per_cell": {f"{env} {mode}": sorted({s for d, e, m, s in combos if (e, m) == (env, mode)})
+                                  for env in envs for mode in modes},
+               "top_two": {f"{env} {mode}": lead for (env, mode), lead in top.items()},
                "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"{DEFENSE_TABLE}..{DEFENSE_TABLE + max(cfg.episodes, cfg.sweep_episodes) - 1}",
-               "files": {_relative(p): digest(p) for p in {*policies.values(), *adversaries.values(),
-                                                           *surrogates.values()} if p},
+               "files": {_relative(p): digest(p) for p in {*done.policies.values(), *done.adversaries.values(),
+                                                           *done.surrogates.values()} if p},
                "missing": {" ".join(map(str, k)): v for k, v in store.missing.items()},
                "benchmarks": benchmarks, "aril_rounds": curves,
                "overall_drop": {m: {f"{d} {a}": v for (d, a), v in o.items()} for m, o in overall.items()},
-               "evaluations": evaluations_json(plan, returns, _relative)}
+               "evaluations": evaluations_json(done.plan, done.returns, _relative)}
     (figures_dir / "report.json").write_text(json.dumps(payload, indent=1) + "\n")
     out.write_text(report_markdown(payload, tables, cells, overall, out, gifs))
     log(f"[report] wrote {out} and {figures_dir}/ in {time.time() - started:.0f}s", flush=True)

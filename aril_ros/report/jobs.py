@@ -136,6 +136,16 @@ def by_cell(plan: list[tuple[Key, dict]], returns: list[list[float]]) -> dict[tu
     return evals
 
 
+def seed_means(plan: list[tuple[Key, dict]], returns: list[list[float]]) -> dict[tuple, dict[tuple, float]]:
+    """Per (env, mode), each (defense, attack, training seed)'s mean return at the calibrated eps: what a paired
+    comparison over seeds takes (:func:`.tables.top_two`)."""
+    means: dict[tuple, dict[tuple, float]] = {}
+    for (key, _), r in zip(plan, returns):
+        if key.scale == 1.0:
+            means.setdefault((key.env, key.mode), {})[(key.defense, key.attack, key.seed)] = float(np.mean(r))
+    return means
+
+
 def evaluations_json(plan: list[tuple[Key, dict]], returns: list[list[float]], relative) -> list[dict]:
     """Each evaluation as the report's JSON records it (file names through ``relative``)."""
     return [{"key": dataclasses.asdict(key),

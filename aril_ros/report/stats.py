@@ -59,6 +59,19 @@ def paired_drop(clean: dict, attacked: dict) -> dict:
             "ci95_pct": [-100 * (mean + half) / base, -100 * (mean - half) / base]}
 
 
+def paired_difference(first: dict[int, float], second: dict[int, float]) -> dict:
+    """How far ``first`` leads ``second``: two defenses' returns per training seed (each a mean over the same
+    episodes), differenced seed by seed over the seeds both have; the mean difference, the half-width of its Student-t
+    95% interval over those seeds (nan for fewer than two), the seeds, and whether the interval leaves 0 out (the
+    table separates the two)."""
+    shared = sorted(set(first) & set(second))
+    differences = np.array([first[s] - second[s] for s in shared], dtype=float)
+    half = half_width(differences)
+    mean = float(differences.mean()) if shared else float("nan")
+    return {"difference": mean, "ci95": float(half), "seeds": shared,
+            "separated": bool(abs(mean) > half) if not math.isnan(half) else False}
+
+
 def episodes_to_pin(drop: dict, episodes: int) -> int | None:
     """None when ``drop``'s 95% interval (a :func:`paired_drop` of ``episodes``) is narrower than the drop it
     reports; else about how many episodes would make it so: the interval narrows as 1/sqrt(episodes), taken half

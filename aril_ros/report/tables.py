@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from ..registry import ATTACKS, DEFENSES, SCORECARD_ATTACKS
 from .paper import BLACK_BOX_ROWS, PAPER, PAPER_ENV, PAPER_OVERALL, TABLE_ROWS
-from .stats import summarise, worst_attack
+from .stats import paired_difference, summarise, worst_attack
 
+ROBUST_ROWS = tuple(d for d, a in TABLE_ROWS if a == "worst")
+"""The defenses the tables rank by their worst attack (the Robust IL rows)."""
 DAGGER_ATTACKS = tuple(a for d, a in TABLE_ROWS if d == "dagger" and a != "none")
 """The attacks on DAgger the tables show as rows of their own (the Adversary rows)."""
 PAPER_ATTACKS = tuple(a for a in DAGGER_ATTACKS if a not in BLACK_BOX_ROWS)
@@ -82,3 +84,20 @@ def make_tables(evals: dict, envs: list[str], modes: list[str], eps: dict, missi
     for mode in modes:
         tables[mode], overall[mode] = table_markdown(mode, envs, cells[mode], {e: eps[e, mode] for e in envs}, missing)
     return cells, tables, overall
+
+
+def top_two(cells: dict, per_seed: dict[tuple, float]) -> dict | None:
+    """One env and mode's two defenses that keep the most under their worst attack (``cells``: the table's), and
+    the first's lead over the second seed by seed (:func:`.stats.paired_difference`); ``per_seed`` holds each
+    (defense, attack, training seed)'s mean return. None with fewer than two defenses evaluated."""
+    ranked = sorted((d for d in ROBUST_ROWS if cells.get((d, "worst"))), key=lambda d: -cells[(d, "worst")]["mean"])
+    if len(ranked) < 2:
+        return None
+    first, second = ranked[:2]
+
+    def seeds_of(defense: str) -> dict[int, float]:
+        attack = cells[(defense, "worst")]["attack"]
+        return {seed: mean for (d, a, seed), mean in per_seed.items() if (d, a) == (defense, attack)}
+
+    return {"first": first, "second": second, "first_mean": cells[(first, "worst")]["mean"],
+            "second_mean": cells[(second, "worst")]["mean"], **paired_difference(seeds_of(first), seeds_of(second))}

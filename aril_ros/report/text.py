@@ -158,6 +158,16 @@ def performance(benchmarks: dict) -> list[str]:
     return lines
 
 
+def _more_seeds(payload: dict) -> str:
+    """Where the report trained more seeds than ``seeds:=`` (``more_seeds:=``, the cells those could not separate)."""
+    more = {cell: seeds for cell, seeds in payload.get("seeds_per_cell", {}).items() if seeds != payload["seeds"]}
+    if not more:
+        return ""
+    added = sorted({s for seeds in more.values() for s in seeds} - set(payload["seeds"]))
+    return (f", and {', '.join(map(str, added))} too where those could not separate a cell's top two defenses: "
+            + _list(list(more)))
+
+
 def _cache_note(payload: dict) -> str:
     """The run's minutes cover only what it computed: say so when evaluations came from an earlier run's cache."""
     counts = payload["evaluations_run"]
@@ -176,6 +186,31 @@ def _machines_note(payload: dict) -> str:
     return "evaluated on " + ", ".join(f"{cpu} ({n} evaluations)" for cpu, n in cpus.items())
 
 
+def leads_lines(payload: dict) -> list[str]:
+    """Per env and mode, the two defenses that keep the most under their worst attack and how far the first leads,
+    seed by seed; and, plainly, the cells where the table cannot tell them apart."""
+    lines = ["Per env and mode, the two defenses that keep the most under their worst attack, and the first's lead: "
+             "the difference of the two returns training seed by training seed (each a mean over the same "
+             "episodes), its mean and 95% Student-t interval over the seeds. Where the interval holds 0 the table "
+             "cannot say which of the two keeps more.", "",
+             "| env, mode | first | second | lead [95% over seeds] | seeds | separated |", "|---|---|---|---|---|---|"]
+    unsettled = []
+    for cell, lead in payload.get("top_two", {}).items():
+        if lead is None:
+            continue
+        low, high = lead["difference"] - lead["ci95"], lead["difference"] + lead["ci95"]
+        first, second = DEFENSES[lead["first"]], DEFENSES[lead["second"]]
+        lines.append(f"| {cell} | {first} ({lead['first_mean']:.0f}) | {second} ({lead['second_mean']:.0f}) | "
+                     f"{lead['difference']:+.0f} [{low:+.0f}, {high:+.0f}] | {len(lead['seeds'])} | "
+                     f"{'yes' if lead['separated'] else '**no**'} |")
+        if not lead["separated"]:
+            unsettled.append(f"{cell} ({first} or {second})")
+    lines += ["", f"The table cannot separate the top two in {len(unsettled)} of "
+                  f"{sum(lead is not None for lead in payload.get('top_two', {}).values())} cells"
+                  + (f": {_list(unsettled)}." if unsettled else "."), ""]
+    return lines
+
+
 def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out: Path, gifs: list[Path]) -> str:
     figures = out.with_suffix("").name  # links relative to the report
     seeds = payload["seeds"]
@@ -192,7 +227,8 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
         "## Protocol", "",
         f"- Envs: {', '.join(payload['envs'])} (gymnasium v5, horizon 1000); the paper used the v2 envs.",
         f"- Budget `{payload['budget']}`: training seeds {', '.join(map(str, seeds))} per defense (seed 0 is the "
-        "bundled policy); deterministic policies, evaluation env seeds " + payload["episode_seeds"] + ".",
+        "bundled policy)" + _more_seeds(payload) + "; deterministic policies, evaluation env seeds "
+        + payload["episode_seeds"] + ".",
         "- Each cell: mean ± the half-width of a 95% Student-t interval (over the training seeds' means when there "
         "are several, else over the episodes); in brackets the drop from clean DAgger and, for a defense, the attack "
         "that hurt it most among random, FGSM, FGSM^k (10 steps), SPSA^k (black-box, 5 steps) and an ARIL-A trained "
@@ -205,6 +241,7 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
     for mode in tables:
         number = 1 if mode == "sensory" else 2
         lines += [f"## Table {number}: {mode} attacks", "", *tables[mode], ""]
+    lines += ["## Which defense leads", "", *leads_lines(payload)]
     lines += ["## Comparison with the paper", "", *comparison(payload, cells)]
     lines += ["## eps sweeps", "",
               "Return vs eps (0 = clean, the dotted line = the calibrated eps) for each defense under each attack. "
