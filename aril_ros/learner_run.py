@@ -128,7 +128,8 @@ class LearnerRun:
         return (f"[train-learner {self.name}] round {r}: {who} return {record['return']:8.1f} ± "
                 f"{record['return_std']:6.1f}"
                 + (f" (clean {record['clean_return']:.1f})" if "clean_return" in record else "")
-                + "".join(f" ({name} {value:.1f})" for name, value in record.get("mix", {}).items())
+                + (" (mix: " + ", ".join(f"{name} {value:.1f}" for name, value in record["mix"].items()) + ")"
+                   if "mix" in record else "")
                 + (f" (noisy expert {record['collected_return']:.1f}, noise trace {record['noise_trace']:.4f})"
                    if "noise_trace" in record else "")
                 + f"  expert loss {record['expert_loss']:.4f}"
