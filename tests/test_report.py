@@ -162,9 +162,26 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
         assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
         logged.clear()
         build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-        assert any("82 evaluations: 82 cached, 0 to run" in line for line in logged)
+        assert any(f"82 evaluations: 82 cached on this CPU model ({cpu()}), 0 to run" in line for line in logged)
         assert "distinct evaluations" not in text and "0 of 82 distinct evaluations run here" in out.read_text()
         assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
+
+
+def test_the_evaluation_cache_serves_only_the_cpu_model_it_was_made_on(tmp_path, monkeypatch):
+    """An evaluation is cached under the CPU model it ran on: the same model reads it back, another evaluates again
+    (its kernels give other returns from the same files) and keeps its own beside it."""
+    from aril_ros.report import jobs
+
+    job = {"env": "Swimmer-v5", "policy": str(bundled_file("dagger", "Swimmer-v5")), "mode": "clean", "attack": "none",
+           "eps": 0.0, "attack_file": "", "rescale": False, "episodes": 1, "seed": 3000, "horizon": 5}
+    returns, counts, runs = jobs.run_jobs([job], tmp_path, 1, "", False, quiet)
+    assert counts == {"run": 1, "cached": 0} and runs[0]["cpu"] == cpu()
+    assert jobs.run_jobs([job], tmp_path, 1, "", False, quiet)[:2] == (returns, {"run": 0, "cached": 1})
+    monkeypatch.setattr(jobs, "cpu", lambda: "Another CPU (AVX9)")
+    assert jobs.run_jobs([job], tmp_path, 1, "", False, quiet)[1] == {"run": 1, "cached": 0}
+    kept = sorted(json.loads(f.read_text())["cpu"] for f in tmp_path.glob("*.json"))
+    assert kept == sorted([cpu(), "Another CPU (AVX9)"])
+    assert jobs.run_jobs([job], tmp_path, 1, "", False, quiet)[1] == {"run": 0, "cached": 1}
 
 
 def test_bad_report_arguments_are_refused(tmp_path):

@@ -78,23 +78,28 @@ def _evaluate_job(job: dict) -> dict:
     return {"returns": evaluation_task(job)["returns"], "seconds": round(time.time() - started, 2), "cpu": cpu()}
 
 
-def job_key(job: dict) -> str:
+def job_key(job: dict, machine: str) -> str:
     """The cache key: the evaluation's arguments, its policy and adversary files by content (digest), not by
-    path: the same files give the same evaluation in any checkout, so a committed cache serves a fresh clone."""
+    path, and the CPU model it ran on (``machine``: :func:`aril_ros.provenance.cpu`). The same files give the same
+    evaluation in any checkout on that CPU model, so a committed cache serves a fresh clone there; another model
+    evaluates again, since its kernels give other returns from the same files and a table mixing the two would
+    compare figures across machines."""
     files = {k: digest(Path(job[k])) for k in ("policy", "attack_file") if job.get(k)}
     arguments = {k: v for k, v in job.items() if k not in files}
-    return hashlib.sha256(json.dumps([arguments, files], sort_keys=True).encode()).hexdigest()[:20]
+    return hashlib.sha256(json.dumps([arguments, files, machine], sort_keys=True).encode()).hexdigest()[:20]
 
 
 def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: bool, log
              ) -> tuple[list[list[float]], dict, list[dict]]:
-    """Per-episode returns of each evaluation, from ``cache`` or computed as tasks (``workers`` CPUs of a local
-    Ray, or the cluster at ``address``); how many distinct evaluations were run and read from the cache; and how
-    each distinct one ran, as its task recorded it: ``seconds`` it took its CPU and ``cpu`` (either missing: cached
-    before it was kept). Each result is cached as it comes back, so a killed report resumes. Equal jobs (a
-    mode-independent policy's clean run, asked for by both modes) run once."""
+    """Per-episode returns of each evaluation, from ``cache`` (the evaluations made on this CPU model) or computed
+    as tasks (``workers`` CPUs of a local Ray, or the cluster at ``address``); how many distinct evaluations were
+    run and read from the cache; and how each distinct one ran, as its task recorded it: ``seconds`` it took its CPU
+    and ``cpu``. Each result is cached as it comes back, under the CPU model its task ran on (on a cluster of other
+    models, the node's), so a killed report resumes. Equal jobs (a mode-independent policy's clean run, asked for
+    by both modes) run once."""
     cache.mkdir(parents=True, exist_ok=True)
-    keys = [job_key(job) for job in jobs]
+    machine = cpu()
+    keys = [job_key(job, machine) for job in jobs]
     done: dict[str, dict] = {}
     todo: dict[str, dict] = {}
     for key, job in zip(keys, jobs):
@@ -104,7 +109,8 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
         else:
             todo[key] = job
     counts = {"run": len(todo), "cached": len(done)}
-    log(f"[report] {len(jobs)} evaluations: {len(done)} cached, {len(todo)} to run", flush=True)
+    log(f"[report] {len(jobs)} evaluations: {len(done)} cached on this CPU model ({machine}), {len(todo)} to run",
+        flush=True)
     started = time.time()
     todo_keys = list(todo)
     calls = [(shipped_job(todo[k]),) for k in todo_keys]
@@ -113,8 +119,9 @@ def run_jobs(jobs: list[dict], cache: Path, workers: int, address: str, fresh: b
         key = todo_keys[index]
         # the job as committed caches keep it: files inside the checkout by their relative path, as anywhere
         job, done[key] = todo[key], {"job": {k: portable(v) for k, v in todo[key].items()}, **result}
+        kept = key if result["cpu"] == machine else job_key(job, result["cpu"])
         # whole or not at all: a cache committed while a report runs (benchmarks/scripts/full-protocol.sh) is read
-        write_atomically(cache / f"{key}.json", lambda partial: partial.write_text(json.dumps(done[key])))
+        write_atomically(cache / f"{kept}.json", lambda partial: partial.write_text(json.dumps(done[key])))
         log(f"[report] {n}/{len(todo)} {time.time() - started:6.0f}s  {job['env']} {job['mode']} "
             f"{Path(job['policy']).name} {job['attack']} eps {job['eps']:g}: {np.mean(result['returns']):.1f}",
             flush=True)
