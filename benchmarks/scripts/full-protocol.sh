@@ -2,7 +2,8 @@
 # Issue 18: the paper's full protocol (aril report budget:=full: 3 training seeds per defense, 50 episodes per cell,
 # wide eps sweeps) for every env, committed as it goes (commit-as-it-goes.sh), so that a fresh clone continues where
 # the last run stopped. The report's work directory, results/report-full/ ($WORK), holds the trained seeds, their
-# adversaries and the evaluation cache (known by content, not by path: it serves any checkout); it is committed every
+# adversaries (they serve any checkout) and the evaluation cache (known by content, not by path, and by the CPU model:
+# it serves any checkout on the model that made it; another evaluates again); it is committed every
 # $COMMIT_EVERY seconds (default 900) while the report runs, and at the end with docs/results.md and its figures.
 # The run directories of the learners' trainings under way ($WORK/learners/: ARIL's runs last hours on one CPU and
 # resume after their last finished round) are committed only at the end, or when the run is stopped: their
