@@ -413,6 +413,16 @@ def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     assert fewest_rows([judged(bench_cell({"aril_a": -60.0, "aril_a_search": -100.0}))], "physical") == ("aril_a",)
     # two rows as good alone: the one that asks the policy least
     assert fewest_rows([judged(bench_cell({"transfer": -50.0, "aril_a_search": -50.0}))], "physical") == ("transfer",)
+    # a cell that not even every row all cells scored reaches (its strongest row, fd_fgsm, is one another cell lacks)
+    # does not decide the rows, and the table's last lines name it
+    from aril_ros.benchmarks.verdict import needed
+    older = bench_cell({"transfer": -40.0, "aril_a": -50.0})
+    older = judged({**older, "drops": {row: d for row, d in older["drops"].items() if row != "fd_fgsm"}})
+    out_of_reach = judged(bench_cell({"transfer": -20.0, "aril_a": -10.0, "fd_fgsm": -40.0}))
+    assert fewest_rows([older, out_of_reach], "physical") == ("aril_a",)
+    lines = needed([{"quick": older}, {"quick": out_of_reach}], ["quick"])
+    assert lines.strip().endswith(": aril_a; no set of the rows every cell scored finds it in "
+                                  f"{out_of_reach['env']} {out_of_reach['policy']}")
 
 
 def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_path):

@@ -178,15 +178,22 @@ def judged(figures: dict) -> dict:
             "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
 
 
+def row_target(cell: dict, within: float = WITHIN) -> float:
+    """The drop a set of rows must find in ``cell``: ``within`` of every row's drop, or of the reference's where
+    every row finds more (drops are negative: the max is the weaker)."""
+    return within * max(cell["worst_of_every_row_drop_pct"], cell["reference"]["drop_pct"])
+
+
 def fewest_rows(cells: list[dict], mode: str, within: float = WITHIN) -> tuple[str, ...]:
     """The fewest black-box rows that find ``within`` of each ``mode`` cell's target: the drop of every row, or the
     reference's where every row finds more (beyond the strongest known attack a row adds nothing the benchmark
-    judges). Among as few, the ones earliest in :data:`BLACK_BOX_ROWS`, which ask the policy least. Run on screening
-    episodes, it is how the quick budget's rows are chosen."""
-    targets = [(cell["drops"], within * max(cell["worst_of_every_row_drop_pct"], cell["reference"]["drop_pct"]))
-               for cell in cells if cell["mode"] == mode]  # drops are negative: max is the weaker
+    judges). Among as few, the ones earliest in :data:`BLACK_BOX_ROWS`, which ask the policy least; a cell that not
+    even all of them reach (the strongest row being one some cell lacks) does not count. Run on screening episodes,
+    it is how the quick budget's rows are chosen."""
+    targets = [(cell["drops"], row_target(cell, within)) for cell in cells if cell["mode"] == mode]
     # a cell scored before a row existed holds no figure for it: only the rows every cell scored can be chosen
     in_every = [row for row in BLACK_BOX_ROWS if all(row in drops for drops, _ in targets)]
+    targets = [(drops, target) for drops, target in targets if min(drops[row]["drop_pct"] for row in in_every) <= target]
     subsets = sorted((rows for size in range(1, len(in_every) + 1) for rows in itertools.combinations(in_every, size)),
                      key=lambda rows: (len(rows), [BLACK_BOX_ROWS.index(row) for row in rows][::-1]))
     for rows in subsets:
@@ -271,13 +278,17 @@ def scored_rows(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]], budge
 
 def needed(rows: list[dict], budgets: list[str]) -> str:
     """The table's last lines: per mode the fewest rows that find :data:`WITHIN` of every row's drop in each cell (of
-    the reference's where every row finds more)."""
+    the reference's where every row finds more), and the cells no set of the rows every cell scored reaches."""
     cells = [cell[budgets[0]] for cell in rows if budgets[0] in cell]
-    return "\n" + "\n".join(
-        f"Rows needed in {mode} (at least {WITHIN:g} of every row's drop in each of these cells, or of the reference's "
-        "where every row finds more): "
-        + ", ".join(fewest_rows(cells, mode)) for mode in dict.fromkeys(cell["mode"] for cell in cells)) + "\n"
-
+    lines = []
+    for mode in dict.fromkeys(cell["mode"] for cell in cells):
+        chosen = fewest_rows(cells, mode)
+        short = [f"{cell['env']} {cell['policy']}" for cell in cells if cell["mode"] == mode
+                 and min(cell["drops"][row]["drop_pct"] for row in chosen) > row_target(cell)]
+        lines.append(f"Rows needed in {mode} (at least {WITHIN:g} of every row's drop in each of these cells, or of the "
+                     "reference's where every row finds more): " + ", ".join(chosen)
+                     + (f"; no set of the rows every cell scored finds it in {', '.join(short)}" if short else ""))
+    return "\n" + "\n".join(lines) + "\n"
 
 if __name__ == "__main__":
     main(sys.argv[1:])
