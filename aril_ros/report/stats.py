@@ -68,8 +68,8 @@ def paired_difference(first: dict[int, float], second: dict[int, float]) -> dict
     differences = np.array([first[s] - second[s] for s in shared], dtype=float)
     half = half_width(differences)
     mean = float(differences.mean()) if shared else float("nan")
-    return {"difference": mean, "ci95": float(half), "seeds": shared,
-            "separated": bool(abs(mean) > half) if not math.isnan(half) else False}
+    # no interval (fewer than two seeds: nan) separates nothing: a comparison with nan is False
+    return {"difference": mean, "ci95": float(half), "seeds": shared, "separated": bool(abs(mean) > half)}
 
 
 def episodes_to_pin(drop: dict, episodes: int) -> int | None:
