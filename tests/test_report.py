@@ -1,3 +1,4 @@
+import dataclasses
 import json
 from pathlib import Path
 
@@ -329,3 +330,38 @@ def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, mo
     lead = payload["top_two"]["Swimmer-v5 physical"]
     assert lead["seeds"] == [0, 1] and "## Which defense leads" in text
     assert "and 1 too where those could not separate a cell's top two defenses: Swimmer-v5 physical" in text
+
+
+def test_evaluate_false_only_makes_the_files_the_evaluations_need(tmp_path, monkeypatch):
+    """evaluate:=false (a machine whose CPU model the cache does not serve): the other seeds' policies, the ARIL-As
+    against them and DAgger's surrogate are made where the report would make them, nothing is evaluated and no report
+    is written; more_seeds:=, which evaluations decide, is refused with it."""
+    import shutil
+
+    from aril_ros import dagger, gail
+
+    def copy_bundled(cfg, log):  # stands in for training: another seed starts as a copy of seed 0
+        name = "gail" if isinstance(cfg, gail.GailConfig) else cfg.algorithm
+        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
+        if not isinstance(cfg, gail.GailConfig):
+            Path(cfg.run_dir).mkdir(parents=True)
+        return cfg.out
+
+    monkeypatch.setattr(dagger, "train_learner", copy_bundled)
+    monkeypatch.setattr(gail, "train_gail", copy_bundled)
+    work, out = tmp_path / "work", tmp_path / "results.md"
+    cfg = ReportConfig(budget="full", envs="Swimmer-v5", modes="physical", seeds="0,1", evaluate=False, horizon=30,
+                       adversary_steps=2048, workers=1, work_dir=str(work), out=str(out))
+    with pytest.raises(ValueError, match="more_seeds:= goes where the evaluations"):
+        build_report(dataclasses.replace(cfg, more_seeds="2"), log=quiet)
+    logged = []
+    assert build_report(cfg, log=lambda *a, **k: logged.append(str(a[0]) if a else "")) is None
+    defenses = ["aril", "dagger", "dart", "dr", "gail"]
+    assert sorted(p.name for p in (work / "adversaries").iterdir()) == [
+        f"Swimmer-v5-physical-{d}-seed1.pt" for d in defenses]
+    assert len(list((work / "policies").iterdir())) == 5
+    assert "Swimmer-v5-physical-dagger-seed1.pt" in [p.name for p in (work / "surrogates").iterdir()]
+    assert not (work / "cache").exists() and not out.exists() and not out.with_suffix("").exists()
+    assert any("evaluate:=false: 20 policy and adversary files" in line and "nothing evaluated" in line
+               for line in logged)

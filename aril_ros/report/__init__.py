@@ -110,6 +110,10 @@ class ReportConfig:
     render_envs: str = arg(DEFAULT_ENV, "envs to render when render:=true (both modes each)")
     work_dir: str = arg("runs/report", "trained seeds, their adversaries and the evaluation cache")
     fresh: bool = arg(False, "ignore cached evaluations")
+    evaluate: bool = arg(True, "evaluate and write the report; false: only make the files its evaluations need (each "
+                               "defense's policies, the ARIL-As against them, DAgger's surrogates) and stop, for a "
+                               "machine whose CPU model the cache does not serve (it would run every evaluation "
+                               "again); name the cells with envs:=, modes:= and seeds:=")
     out: str = arg("docs/results.md", "the report; its figures and JSON go to <out without .md>/")
 
 
@@ -120,6 +124,10 @@ def resolved(cfg: ReportConfig) -> ReportConfig:
     cfg = dataclasses.replace(cfg, **{k: getattr(cfg, k) or v for k, v in BUDGETS[cfg.budget].items()})
     if cfg.workers < 1 or cfg.horizon < 1:
         raise ValueError("workers:= and horizon:= must be at least 1")
+    if not cfg.evaluate and cfg.more_seeds:
+        raise ValueError("more_seeds:= goes where the evaluations of seeds:= cannot separate a cell, so it needs "
+                         "evaluate:=true; to only train, name the cells with envs:= and modes:= and every seed in "
+                         "seeds:=")
     if any(s <= 0 or s == 1.0 for s in scales_of(cfg)):
         raise ValueError(f"sweep_scales:= takes multiples other than 0 and 1 (those are the tables'), "
                          f"got {scales_of(cfg)}")
@@ -191,9 +199,28 @@ def leads(done: Evaluated, envs: list[str], modes: list[str]) -> dict[tuple, dic
             for env in envs for mode in modes}
 
 
-def build_report(cfg: ReportConfig, log=print) -> Path:
+def trained_only(cfg: ReportConfig, combos: list[tuple], eps: dict, log) -> None:
+    """``evaluate:=false``: the files the evaluations of ``combos`` need, made where missing, and nothing evaluated;
+    what could not be made is named."""
+    with session(cfg.workers, cfg.address):
+        store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
+        policies = store.policies(combos)
+        adversaries = store.adversaries(policies, eps)
+        store.surrogates(policies, eps, cfg.horizon)
+    made = [p for p in (*policies.values(), *adversaries.values()) if p]
+    log(f"[report] evaluate:=false: {len(made)} policy and adversary files in {cfg.work_dir}/ for "
+        f"{len(combos)} defense, env, mode and seed combinations; nothing evaluated, no report written"
+        + "".join(f"\n  missing {' '.join(map(str, key))}: {why}" for key, why in store.missing.items()), flush=True)
+
+
+def build_report(cfg: ReportConfig, log=print) -> Path | None:
     cfg, started = resolved(cfg), time.time()
     envs, modes, training_seeds = comma_list(cfg.envs), comma_list(cfg.modes), [int(s) for s in comma_list(cfg.seeds)]
+    eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
+    combos = [(defense, env, mode, seed) for env in envs for mode in modes for defense in PAPER_DEFENSES
+              for seed in training_seeds]
+    if not cfg.evaluate:
+        return trained_only(cfg, combos, eps, log)
     sweep_attacks = comma_list(cfg.sweep_attacks)
     out, figures_dir = Path(cfg.out), Path(cfg.out).with_suffix("")
     figures_dir.mkdir(parents=True, exist_ok=True)
@@ -205,9 +232,6 @@ def build_report(cfg: ReportConfig, log=print) -> Path:
     # 2. each defense's policy and the ARIL-A against it, per env, mode and training seed; 3. the evaluations, from
     # the cache or run; all as tasks of one Ray. Then, with more_seeds, the same again on the cells whose top two
     # defenses the first seeds could not separate
-    eps = {(env, mode): calibrated_eps(env, mode) for env in envs for mode in modes}
-    combos = [(defense, env, mode, seed) for env in envs for mode in modes for defense in PAPER_DEFENSES
-              for seed in training_seeds]
     with session(cfg.workers, cfg.address):
         store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
         done = evaluated(cfg, store, combos, eps, sweep_attacks, log)
