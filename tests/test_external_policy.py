@@ -325,6 +325,11 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
             assert set(run.probes_per_step) == {result["attacks"][attack]["1.0"]["queries_per_step"]} == {asked}
             # no probe's answer was stepped on: the node's own answer to each observation (one at a time, as it is asked)
             np.testing.assert_array_equal(run.action, [policy(obs) for obs in run.obs])
+        if "fd_fgsm" in result["attacks"]:  # FGSM by finite differences: two questions per perturbed entry a step
+            run = read_run(folder / "logs" / f"{mode}-fd_fgsm-{result['eps']:g}.mcap")
+            questions = 2 * layout_of(card["settings"]["env"]).n_position
+            assert set(run.probes_per_step) == {result["attacks"]["fd_fgsm"]["1.0"]["queries_per_step"]} == {questions}
+            np.testing.assert_array_equal(run.action, [policy(obs) for obs in run.obs])
         assert (folder / f"sweep-{mode}.png").stat().st_size > 0
         at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}
         assert result["worst"]["attack"] == min(at_eps, key=at_eps.get)
@@ -346,7 +351,7 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
             cells.append(cell)
         assert result["surrogate_queries"] > 0 and np.isfinite(result["worst"]["drop_pct"])
         per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in result["attacks"].items()}
-        assert per_step == {"sensory": {"transfer": 0, "aril_a_search": 10}, "physical": {"aril_a": 1}}[mode]
+        assert per_step == {"sensory": {"fd_fgsm": 6, "aril_a_search": 10}, "physical": {"aril_a": 1}}[mode]  # Swimmer: 3 entries
     steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
     surrogates = sum(result["surrogate_queries"] for result in card["modes"].values())
     clean = card["modes"]["sensory"]["clean"]

@@ -373,7 +373,7 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     from aril_ros.benchmarks.verdict import VerdictBenchConfig, cell_folder, needed, scored_rows, table
     cfg = VerdictBenchConfig(out=str(tmp_path), episodes=20)
     env = "HalfCheetah-v5"
-    scored_cells = {("dagger", "sensory", "quick"): {"transfer": -45.0},
+    scored_cells = {("dagger", "sensory", "quick"): {"fd_fgsm": -45.0},
                     ("dagger", "sensory", "full"): {"fd_fgsm": -55.0}, ("dagger", "physical", "quick"): {"aril_a": -90.0},
                     ("bc", "physical", "quick"): {"aril_a": -70.0}, ("bc", "physical", "full"): {"aril_a": -66.0}}
     elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)"}
@@ -388,7 +388,7 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     rows = scored_rows(cfg, grid, ["quick", "full"])
     assert [sorted(row) for row in rows] == [["full", "quick"], ["quick"], ["full", "quick"]]  # Ant BC: no row
     lines = table(rows, ["quick", "full"]).splitlines()
-    assert "| -45.0% [-46.0, -44.0] (transfer) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
+    assert "| -45.0% [-46.0, -44.0] (fd_fgsm) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
     assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
     assert lines[4].startswith("| HalfCheetah-v5 | bc | physical |")
     assert lines[4].endswith("| -70.0% [-71.0, -69.0] (aril_a) | 1.40 | 1.0 | -66.0% [-67.0, -65.0] (aril_a) | "
@@ -440,3 +440,43 @@ def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_pat
         kept = keep_stronger(zoo, adversary, dict(zip(("trained", "zoo"), returns)), MODE, quiet)
         assert kept["kept"] == ("zoo" if verdict.relative(zoo) == strongest else "trained")
         assert sha256(adversary) == sha256(Path(strongest))
+
+
+def test_benchmark_adds_a_row_a_cell_was_scored_without_on_its_own_episodes(tmp_path, monkeypatch):
+    """A cell scored before fd_fgsm existed gets it on its own episodes (only rows that need no pipeline file), its
+    drop paired with the clean episodes scored again with it, and keeps it: the budget's verdict and fewest_rows can
+    count it. Refused on another CPU model, and where the clean episodes do not come out the same."""
+    import json
+    from aril_ros.benchmarks import verdict
+    from aril_ros.provenance import cpu
+
+    asked = []
+
+    def scoring(cfg, env, policy, mode, budget, episodes, attacks, folder):  # clean 5000 per episode, fd takes 40%
+        asked.append((episodes, attacks))
+        episode = lambda r: {"episodes": [{"return": r + i} for i in range(episodes)]}  # noqa: E731
+        return {"clean": {"mean_return": 5000.0 + (episodes - 1) / 2, **episode(5000.0)},
+                "attacks": {"fd_fgsm": {"1.0": episode(3000.0)}}}
+
+    monkeypatch.setattr(verdict, "scorecard_result", scoring)
+    cfg, cell = verdict.VerdictBenchConfig(out=str(tmp_path), episodes=4), ("HalfCheetah-v5", "dagger", "sensory", "quick")
+    folder = verdict.cell_folder(cfg, *cell)
+    folder.mkdir(parents=True)
+    old = bench_cell({"aril_a_search": -30.0}, mode="sensory", episodes=4, cpu=cpu())
+    del old["drops"]["fd_fgsm"]
+    old["clean"] = 5001.5
+    (folder / "cell.json").write_text(json.dumps(old))
+    verdict.add_missing_rows(cfg, *cell)
+    judged = verdict.score_cell(cfg, *cell)
+    assert asked == [(4, ["fd_fgsm"])]
+    assert judged["drops"]["fd_fgsm"]["drop_pct"] == pytest.approx(-2000.0 / 5001.5 * 100)
+    assert judged["drops"]["aril_a_search"]["drop_pct"] == -30.0  # the others as they were
+    assert "fd_fgsm" in json.loads((folder / "cell.json").read_text())["rows_added"]
+    verdict.add_missing_rows(cfg, *cell)
+    assert len(asked) == 1  # kept: not scored again
+
+    for changed, message in (({"cpu": "Another CPU (AVX2)"}, "was scored on Another CPU"),
+                             ({"clean": 4000.0}, "its clean episodes came out at 5001.500 here, not 4000.000")):
+        (folder / "cell.json").write_text(json.dumps({**old, **changed}))
+        with pytest.raises(ValueError, match=message):
+            verdict.add_missing_rows(cfg, *cell)

@@ -35,7 +35,7 @@ from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
-from ..scorecard import BUDGETS, ScorecardConfig, scorecard
+from ..scorecard import BUDGETS, PIPELINE_ATTACKS, ScorecardConfig, scorecard
 
 BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search")
 WITHIN = 0.95
@@ -75,10 +75,9 @@ def episodes_of(cfg: VerdictBenchConfig, env: str) -> int:
     return cfg.episodes or EPISODES.get(env, DEFAULT_EPISODES)
 
 
-def reference(env: str, policy: str, mode: str, episodes: int, seed: int, card: dict) -> dict:
-    """The reference of a cell: the stronger of white-box FGSM^k (from the scorecard's cells) and the bundled ARIL-A
-    trained against this learner, each with its paired drop from the scorecard's clean cell."""
-    result = card["modes"][mode]
+def reference(env: str, policy: str, mode: str, episodes: int, seed: int, result: dict) -> dict:
+    """The reference of a cell: the stronger of white-box FGSM^k (from the scorecard's ``mode`` results) and the
+    bundled ARIL-A trained against this learner, each with its paired drop from the scorecard's clean cell."""
     adversary = adversary_path(env, mode, policy)
     learned = evaluate(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
                                   episodes=episodes, seed=seed))
@@ -134,28 +133,62 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
     return judged(wider)
 
 
+def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> None:
+    """A cell scored before a black-box row existed holds no figure for it, so neither its verdict nor
+    :func:`fewest_rows` can count the row: the missing rows that need no pipeline file (``fd_fgsm`` came after the
+    first cells) are scored on the cell's own episodes and added to its ``cell.json``, with the minutes they took.
+    Only on the CPU model the cell was scored on, whose clean episodes they must give again (its other rows are
+    paired with those)."""
+    done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
+    figures = json.loads(done.read_text())
+    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"] and row not in PIPELINE_ATTACKS]
+    if not missing:
+        return
+    if figures.get("cpu", cpu()) != cpu():  # a cell that did not record it: its clean episodes tell (below)
+        raise ValueError(f"{done} lacks the rows {', '.join(missing)}, and was scored on {figures['cpu']}: score them "
+                         f"on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
+    started = time.time()
+    result = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing, done.parent / "added")
+    if abs(result["clean"]["mean_return"] - figures["clean"]) > 1e-3:
+        raise ValueError(f"{done}: its clean episodes came out at {result['clean']['mean_return']:.3f} here, not "
+                         f"{figures['clean']:.3f}: the rows {', '.join(missing)} would not pair with its others")
+    minutes = (time.time() - started) / 60
+    figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
+    figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
+    figures["minutes"] = round(figures["minutes"] + minutes, 2)
+    done.write_text(json.dumps(figures, indent=1) + "\n")
+
+
+def scorecard_result(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str, episodes: int,
+                     attacks: list[str], folder: Path) -> dict:
+    """``mode``'s results of one scorecard of ``policy`` at ``budget`` on ``episodes`` with ``attacks`` at eps
+    (scale 1), in ``folder`` (reusing the surrogate and adversary a scoring there trained before), its progress
+    in ``scorecard.log`` with the seconds since it began: where a cell's minutes went."""
+    folder.mkdir(parents=True, exist_ok=True)
+    started = time.time()
+    with (folder / "scorecard.log").open("a") as log_file:
+        def log(*parts, **_):
+            print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
+
+        # no timing rows: the benchmark times the value verdict, as its cells scored before them did
+        scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget, episodes=episodes,
+                                  seed=cfg.seed, scales="1", attacks=",".join(attacks), timing=0,
+                                  workers=cfg.workers, out=str(folder)), log=log)
+    return json.loads((folder / "scorecard.json").read_text())["modes"][mode]
+
+
 def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str, episodes: int) -> dict:
     """Score ``policy`` in ``mode`` at ``budget`` on ``episodes`` into the cell's folder (reusing the surrogate and
     adversary a scoring there trained before): the measured figures alone, the budget's verdict is judged from them
     on every read."""
     folder = cell_folder(cfg, env, policy, mode, budget)
     started = time.time()
-    attacks = ",".join((*BLACK_BOX_ROWS, "fgsm_k"))
-    with (folder / "scorecard.log").open("a") as log_file:
-        def log(*parts, **_):  # every line with the seconds since the scoring began: where its minutes went
-            print(f"[{time.time() - started:7.1f} s]", *parts, file=log_file, flush=True)
-
-        # no timing rows: the benchmark times the value verdict, as its cells scored before them did
-        scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget,
-                                  episodes=episodes, seed=cfg.seed, scales="1", attacks=attacks, timing=0,
-                                  workers=cfg.workers, out=str(folder)), log=log)
+    result = scorecard_result(cfg, env, policy, mode, budget, episodes, [*BLACK_BOX_ROWS, "fgsm_k"], folder)
     minutes = (time.time() - started) / 60
-    card = json.loads((folder / "scorecard.json").read_text())
-    result = card["modes"][mode]
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
-            "reference": reference(env, policy, mode, episodes, cfg.seed, card), "cpu": cpu()}
+            "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu()}
 
 
 def verdict_drop(cell: dict) -> dict:
@@ -250,6 +283,10 @@ def main(argv=None) -> None:
     budgets, out = comma_list(cfg.budgets), Path(cfg.out)
     grid = [(env, policy, mode) for env in comma_list(cfg.envs) for policy in comma_list(cfg.policies)
             for mode in comma_list(cfg.modes)]
+    # first every cell scored before a row existed gets it: the table after each cell judges them all by today's rows
+    for (env, policy, mode), budget in itertools.product(grid, budgets):
+        if (cell_folder(cfg, env, policy, mode, budget) / "cell.json").exists():
+            add_missing_rows(cfg, env, policy, mode, budget)
     for env, policy, mode in grid:
         cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}
         print(f"{env} {policy} {mode}: " + "; ".join(
