@@ -298,15 +298,14 @@ def test_the_report_runs_only_performance_benchmarks_with_its_own_arguments():
     assert ours == set(arguments(1000))
 
 
-@pytest.mark.slow
-def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, monkeypatch):
-    """more_seeds:= trains and evaluates those seeds of every defense only in the cells whose top two the first
-    seeds leave unseparated (one seed leaves every cell so), and the report says where."""
+def trainings_copy_the_bundled_files(monkeypatch) -> None:
+    """Stand-ins for the learners' and GAIL's trainings: another seed starts as a copy of the bundled seed 0, and a
+    learner's training leaves its run directory as a real one does."""
     import shutil
 
     from aril_ros import dagger, gail
 
-    def copy_bundled(cfg, log):  # stands in for training: another seed starts as a copy of seed 0
+    def copy_bundled(cfg, log):
         name = "gail" if isinstance(cfg, gail.GailConfig) else cfg.algorithm
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
@@ -316,6 +315,13 @@ def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, mo
 
     monkeypatch.setattr(dagger, "train_learner", copy_bundled)
     monkeypatch.setattr(gail, "train_gail", copy_bundled)
+
+
+@pytest.mark.slow
+def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, monkeypatch):
+    """more_seeds:= trains and evaluates those seeds of every defense only in the cells whose top two the first
+    seeds leave unseparated (one seed leaves every cell so), and the report says where."""
+    trainings_copy_the_bundled_files(monkeypatch)
     cfg = ReportConfig(envs="Swimmer-v5", modes="physical", seeds="0", more_seeds="1", episodes=2, sweep_episodes=1,
                        horizon=30, sweep_scales="2", sweep_attacks="random", adversary_steps=2048, perf=False,
                        workers=1, work_dir=str(tmp_path / "work"), out=str(tmp_path / "results.md"))
@@ -336,20 +342,7 @@ def test_evaluate_false_only_makes_the_files_the_evaluations_need(tmp_path, monk
     """evaluate:=false (a machine whose CPU model the cache does not serve): the other seeds' policies, the ARIL-As
     against them and DAgger's surrogate are made where the report would make them, nothing is evaluated and no report
     is written; more_seeds:=, which evaluations decide, is refused with it."""
-    import shutil
-
-    from aril_ros import dagger, gail
-
-    def copy_bundled(cfg, log):  # stands in for training: another seed starts as a copy of seed 0
-        name = "gail" if isinstance(cfg, gail.GailConfig) else cfg.algorithm
-        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(bundled_file(name, cfg.env, getattr(cfg, "mode", None)), cfg.out)
-        if not isinstance(cfg, gail.GailConfig):
-            Path(cfg.run_dir).mkdir(parents=True)
-        return cfg.out
-
-    monkeypatch.setattr(dagger, "train_learner", copy_bundled)
-    monkeypatch.setattr(gail, "train_gail", copy_bundled)
+    trainings_copy_the_bundled_files(monkeypatch)
     work, out = tmp_path / "work", tmp_path / "results.md"
     cfg = ReportConfig(budget="full", envs="Swimmer-v5", modes="physical", seeds="0,1", evaluate=False, horizon=30,
                        adversary_steps=2048, workers=1, work_dir=str(work), out=str(out))
