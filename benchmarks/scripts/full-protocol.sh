@@ -11,6 +11,8 @@
 # Arguments go to aril report after budget:=full and work_dir:=, so they can change either.
 #   benchmarks/scripts/full-protocol.sh                     # the 2 CPUs of this machine
 #   benchmarks/scripts/full-protocol.sh address:=auto       # a Ray cluster this machine has joined (docs/scaling.md)
+#   benchmarks/scripts/full-protocol.sh envs:=Swimmer-v5 modes:=physical seeds:=0,1,2,3,4 evaluate:=false
+#                                # trainings only, on a CPU model the committed cache does not serve (no report)
 set -euo pipefail
 cd "$(dirname "$0")/../.."  # the checkout
 work=${WORK:-results/report-full}
