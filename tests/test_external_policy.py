@@ -365,7 +365,7 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     assert runs_answered(tags) == expected
     # between the timing run and the first cell's, the surrogates' questions (each connection's numbered from 0): the
     # modes' pipelines side by side, each mode's copy, then each mode's refinement
-    between = tags[before:tags.index("0/0", before)]
+    between = tags[before:before + surrogates]  # the first cell's own questions follow (fd_fgsm's before its first step)
     starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
     copy_sensory, copy_physical, refine_sensory, refine_physical = np.diff([*starts, len(between)]).tolist()
     assert [copy_sensory + refine_sensory, copy_physical + refine_physical] == [
