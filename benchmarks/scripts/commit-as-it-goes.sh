@@ -24,9 +24,13 @@ commit() {  # $1: periodic or last; $2: the message. What has finished under the
       git ls-files --error-unmatch -- "$path" >/dev/null 2>&1; then there+=("$path"); fi
   done
   [ ${#there[@]} -gt 0 ] || return 0
-  if [ "$when" = periodic ]; then for path in "${at_end[@]}"; do there+=(":(exclude)$path"); done; fi
-  git add -A -- "${there[@]}" ":(exclude)*.tmp" ":(exclude)*.partial*" || true
-  git commit -q -m "$message" -- "${there[@]}" >/dev/null || true
+  # staged, then a file being written (and, periodically, the at-end paths) unstaged: git 2.39's add with an
+  # :(exclude) pathspec adds no untracked file under a subdirectory it names (seen with results/report-full/policies)
+  git add -A -- "${there[@]}" || true
+  local unstage=(':(glob)**/*.tmp' ':(glob)**/*.partial*')
+  if [ "$when" = periodic ]; then for path in "${at_end[@]}"; do unstage+=("$path"); there+=(":(exclude)$path"); done; fi
+  git reset -q -- "${unstage[@]}" 2>/dev/null || true
+  git commit -q -m "$message" -- "${there[@]}" ":(exclude)*.tmp" ":(exclude)*.partial*" >/dev/null || true
 }
 
 "$@" &
