@@ -316,19 +316,17 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
             for cell in sweep.values():
                 assert [e["env_seed"] for e in cell["episodes"]] == seeds
                 assert {e["steps"] for e in cell["episodes"]} == {20}
-        # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more: all probes in the log
-        for attack, asked in (("aril_a", 1), ("aril_a_search", SEARCH + 2)):
+        # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more; FGSM by finite
+        # differences two questions per perturbed entry: all probes in the log
+        logs = {"aril_a": (f"aril_a-adversary-{mode}", 1),
+                "aril_a_search": (f"aril_a-adversary-{mode}-search{SEARCH}", SEARCH + 2),
+                "fd_fgsm": ("fd_fgsm", 2 * layout_of(card["settings"]["env"]).n_position)}
+        for attack, (name, asked) in logs.items():
             if attack not in result["attacks"]:
                 continue
-            search = f"-search{SEARCH}" if attack == "aril_a_search" else ""
-            run = read_run(folder / "logs" / f"{mode}-aril_a-adversary-{mode}{search}-{result['eps']:g}.mcap")
+            run = read_run(folder / "logs" / f"{mode}-{name}-{result['eps']:g}.mcap")
             assert set(run.probes_per_step) == {result["attacks"][attack]["1.0"]["queries_per_step"]} == {asked}
             # no probe's answer was stepped on: the node's own answer to each observation (one at a time, as it is asked)
-            np.testing.assert_array_equal(run.action, [policy(obs) for obs in run.obs])
-        if "fd_fgsm" in result["attacks"]:  # FGSM by finite differences: two questions per perturbed entry a step
-            run = read_run(folder / "logs" / f"{mode}-fd_fgsm-{result['eps']:g}.mcap")
-            questions = 2 * layout_of(card["settings"]["env"]).n_position
-            assert set(run.probes_per_step) == {result["attacks"]["fd_fgsm"]["1.0"]["queries_per_step"]} == {questions}
             np.testing.assert_array_equal(run.action, [policy(obs) for obs in run.obs])
         assert (folder / f"sweep-{mode}.png").stat().st_size > 0
         at_eps = {attack: sweep["1.0"]["mean_return"] for attack, sweep in result["attacks"].items()}

@@ -456,7 +456,7 @@ def test_benchmark_adds_a_row_a_cell_was_scored_without_on_its_own_episodes(tmp_
         asked.append((episodes, attacks))
         episode = lambda r: {"episodes": [{"return": r + i} for i in range(episodes)]}  # noqa: E731
         return {"clean": {"mean_return": 5000.0 + (episodes - 1) / 2, **episode(5000.0)},
-                "attacks": {"fd_fgsm": {"1.0": episode(3000.0)}}}
+                "attacks": {"fd_fgsm": {"1.0": episode(3000.0)}}}, 0.5
 
     monkeypatch.setattr(verdict, "scorecard_result", scoring)
     cfg, cell = verdict.VerdictBenchConfig(out=str(tmp_path), episodes=4), ("HalfCheetah-v5", "dagger", "sensory", "quick")
@@ -471,7 +471,8 @@ def test_benchmark_adds_a_row_a_cell_was_scored_without_on_its_own_episodes(tmp_
     assert asked == [(4, ["fd_fgsm"])]
     assert judged["drops"]["fd_fgsm"]["drop_pct"] == pytest.approx(-2000.0 / 5001.5 * 100)
     assert judged["drops"]["aril_a_search"]["drop_pct"] == -30.0  # the others as they were
-    assert "fd_fgsm" in json.loads((folder / "cell.json").read_text())["rows_added"]
+    kept = json.loads((folder / "cell.json").read_text())
+    assert kept["rows_added"] == {"fd_fgsm": {"minutes": 0.5}} and kept["minutes"] == 1.5  # the scoring's minutes too
     verdict.add_missing_rows(cfg, *cell)
     assert len(asked) == 1  # kept: not scored again
 

@@ -147,12 +147,11 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
     if figures.get("cpu", cpu()) != cpu():  # a cell that did not record it: its clean episodes tell (below)
         raise ValueError(f"{done} lacks the rows {', '.join(missing)}, and was scored on {figures['cpu']}: score them "
                          f"on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
-    started = time.time()
-    result = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing, done.parent / "added")
+    result, minutes = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing,
+                                       done.parent / "added")
     if abs(result["clean"]["mean_return"] - figures["clean"]) > 1e-3:
         raise ValueError(f"{done}: its clean episodes came out at {result['clean']['mean_return']:.3f} here, not "
                          f"{figures['clean']:.3f}: the rows {', '.join(missing)} would not pair with its others")
-    minutes = (time.time() - started) / 60
     figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
     figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
     figures["minutes"] = round(figures["minutes"] + minutes, 2)
@@ -160,10 +159,10 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
 
 
 def scorecard_result(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str, episodes: int,
-                     attacks: list[str], folder: Path) -> dict:
+                     attacks: list[str], folder: Path) -> tuple[dict, float]:
     """``mode``'s results of one scorecard of ``policy`` at ``budget`` on ``episodes`` with ``attacks`` at eps
-    (scale 1), in ``folder`` (reusing the surrogate and adversary a scoring there trained before), its progress
-    in ``scorecard.log`` with the seconds since it began: where a cell's minutes went."""
+    (scale 1), in ``folder`` (reusing the surrogate and adversary a scoring there trained before), and the minutes
+    it took; its progress in ``scorecard.log`` with the seconds since it began: where a cell's minutes went."""
     folder.mkdir(parents=True, exist_ok=True)
     started = time.time()
     with (folder / "scorecard.log").open("a") as log_file:
@@ -174,17 +173,15 @@ def scorecard_result(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
         scorecard(ScorecardConfig(policy=policy, env=env, modes=mode, budget=budget, episodes=episodes,
                                   seed=cfg.seed, scales="1", attacks=",".join(attacks), timing=0,
                                   workers=cfg.workers, out=str(folder)), log=log)
-    return json.loads((folder / "scorecard.json").read_text())["modes"][mode]
+    return json.loads((folder / "scorecard.json").read_text())["modes"][mode], (time.time() - started) / 60
 
 
 def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str, episodes: int) -> dict:
     """Score ``policy`` in ``mode`` at ``budget`` on ``episodes`` into the cell's folder (reusing the surrogate and
     adversary a scoring there trained before): the measured figures alone, the budget's verdict is judged from them
     on every read."""
-    folder = cell_folder(cfg, env, policy, mode, budget)
-    started = time.time()
-    result = scorecard_result(cfg, env, policy, mode, budget, episodes, [*BLACK_BOX_ROWS, "fgsm_k"], folder)
-    minutes = (time.time() - started) / 60
+    result, minutes = scorecard_result(cfg, env, policy, mode, budget, episodes, [*BLACK_BOX_ROWS, "fgsm_k"],
+                                       cell_folder(cfg, env, policy, mode, budget))
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,

@@ -177,13 +177,18 @@ class Evaluated:
     runs: list
 
 
-def evaluated(cfg: ReportConfig, store: Artifacts, combos: list[tuple], eps: dict, sweep_attacks: list[str],
-              log) -> Evaluated:
-    """Each combo's policy (trained when not bundled), the ARIL-A against it and DAgger's surrogate, then every
-    evaluation of the plan, from the cache or run (:func:`.jobs.run_jobs`)."""
+def files_needed(store: Artifacts, combos: list[tuple], eps: dict, horizon: int) -> tuple[dict, dict, dict]:
+    """Each combo's policy (trained when not bundled), the ARIL-A against it and DAgger's surrogate."""
     policies = store.policies(combos)
     adversaries = store.adversaries(policies, eps)
-    surrogates = store.surrogates(policies, eps, cfg.horizon)
+    return policies, adversaries, store.surrogates(policies, eps, horizon)
+
+
+def evaluated(cfg: ReportConfig, store: Artifacts, combos: list[tuple], eps: dict, sweep_attacks: list[str],
+              log) -> Evaluated:
+    """The files each combo needs (:func:`files_needed`), then every evaluation of the plan, from the cache or run
+    (:func:`.jobs.run_jobs`)."""
+    policies, adversaries, surrogates = files_needed(store, combos, eps, cfg.horizon)
     plan = evaluation_plan(policies, adversaries, surrogates, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
                            scales_of(cfg), cfg.horizon)
     returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
@@ -204,11 +209,10 @@ def trained_only(cfg: ReportConfig, combos: list[tuple], eps: dict, log) -> None
     what could not be made is named."""
     with session(cfg.workers, cfg.address):
         store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
-        policies = store.policies(combos)
-        adversaries = store.adversaries(policies, eps)
-        store.surrogates(policies, eps, cfg.horizon)
+        policies, adversaries, _ = files_needed(store, combos, eps, cfg.horizon)
     made = [p for p in (*policies.values(), *adversaries.values()) if p]
-    log(f"[report] evaluate:=false: {len(made)} policy and adversary files in {cfg.work_dir}/ for "
+    log(f"[report] evaluate:=false: {len(made)} policy and adversary files ready (seed 0's bundled, the others' in "
+        f"{cfg.work_dir}/) for "
         f"{len(combos)} defense, env, mode and seed combinations; nothing evaluated, no report written"
         + "".join(f"\n  missing {' '.join(map(str, key))}: {why}" for key, why in store.missing.items()), flush=True)
 
