@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -38,7 +39,8 @@ from . import plugins, seeds
 from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, load_adversary, save_adversary
 from .args import arg
 from .envs import layout_of
-from .policy import load_policy, policy_file, resolve_policy
+from .policy import Answers, load_policy, policy_file, resolve_policy
+from .protocol import ros_domain
 from .provenance import stamp
 from .registry import ATTACKED_MODES, DEFAULT_ENV, MAX_EPS, check_name, for_task
 from .rollout import SimBatch
@@ -80,6 +82,7 @@ class AdversaryConfig:
     victim: str = arg("expert", "the attacked policy: a bundled name, a policy file, or ros (a running policy node "
                                 "on observation -> action in this ROS_DOMAIN_ID, through the installed ROS side); "
                                 "only its actions are used")
+    domain: str = arg("", "victim:=ros: the ROS_DOMAIN_ID the policy node runs in (default: this process's)")
     expert: str = arg("expert", "the expert whose action on the true state defines the loss")
     steps: int = arg(1_000_000, "environment steps of training (the paper: 1e6 per attack stage)", low=0, high=10**9)
     n_envs: int = arg(16, "simulators run side by side", low=1, high=1024)
@@ -121,11 +124,12 @@ def train_adversary(cfg: AdversaryConfig, log=print, victim=None) -> Path:
     if victim is not None:
         return train_against(cfg, victim, log)
     if cfg.victim in plugins.names("aril_ros.victims"):
-        remote = plugins.load("aril_ros.victims", cfg.victim)(cfg.env)
-        try:
-            return train_against(cfg, remote, log)
-        finally:
-            remote.close()
+        with ros_domain(cfg.domain) if cfg.domain else nullcontext():
+            remote = plugins.load("aril_ros.victims", cfg.victim)(cfg.env)
+            try:
+                return train_against(cfg, remote, log)
+            finally:
+                remote.close()
     file = policy_file(cfg.victim, cfg.env, cfg.mode)
     return train_against(cfg, load_policy(file, cfg.env), log, victim_digest=digest_of(file.read_bytes()))
 
@@ -136,6 +140,7 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
     torch.set_num_threads(cfg.threads)
     expert = resolve_policy(cfg.expert, cfg.env)
     made_by = stamp("aril train-adversary", cfg)
+    victim_provenance, victim = victim.meta.provenance, Answers(victim)  # from here on its answers alone
     sims, resets = SimBatch(cfg.env, cfg.n_envs), EnvSeeds(seeds.adversary_training(cfg.seed))
     net = initial_adversary(cfg, *input_scaling(cfg, sims, victim, expert, resets))
     play = TimingPlay(cfg, net, victim) if timed(cfg) else ValuePlay(cfg, sims, net, victim)
@@ -152,9 +157,9 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
         log(collector.progress_line(steps, time.time() - started), flush=True)
     sims.close()
     net.meta["provenance"] = {
-        **made_by, "victim": cfg.victim, "victim_provenance": victim.meta.provenance,
+        **made_by, "victim": cfg.victim, "victim_provenance": victim_provenance,
         **({"victim_sha256": victim_digest} if victim_digest else {}), "expert": cfg.expert,
-        "steps": steps, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
+        "steps": steps, "queries": victim.asked, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
         "final_episode_loss": collector.recent_loss()}
     out = (save_timing_adversary(net, cfg.out or f"runs/timing-adversary-{cfg.env}.pt") if timed(cfg)
            else save_adversary(net, cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt"))

@@ -315,3 +315,16 @@ def policy_file(name_or_path: str, env_id: str, mode: str | None = None) -> Path
 def resolve_policy(name_or_path: str, env_id: str, mode: str | None = None) -> MLPPolicy:
     """The policy of a bundled name or a policy file path (:func:`policy_file`), checked against ``env_id``."""
     return load_policy(policy_file(name_or_path, env_id, mode), env_id)
+
+
+class Answers:
+    """A policy as a black box: its actions, nothing else (what a black-box attack may see of a file or a node), and
+    how many rows it was asked (``asked``)."""
+
+    def __init__(self, policy):
+        self._act = policy.act
+        self.asked = 0
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        self.asked += len(np.atleast_2d(obs))
+        return self._act(obs)

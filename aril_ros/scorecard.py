@@ -11,8 +11,8 @@ policy for actions:
 SPSA^k, FGSM by finite differences (the sign of the loss's slope along each perturbed entry, from two questions per
 entry) and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
 answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
-against the surrogate from it (or that one, where it takes more from the surrogate), alone and with query-time
-search; and, when the policy is a file whose gradients can be taken, the white-box FGSM and FGSM^k. The worst of
+from it against the policy's answers, alone and with query-time search; and, when the policy is a file whose
+gradients can be taken, the white-box FGSM and FGSM^k. The worst of
 them is the verdict (AutoAttack's rule: no knob a user could set to a soft verdict). eps is the calibrated one for
 the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is another file in each
 mode, each with a clean cell of its own (a drop compares the same policy clean and attacked).
@@ -23,7 +23,8 @@ cell is instead a run of the ROS 2 graph with a policy node serving the file (th
 runs, the same figures: the graph is bit-exact to the engine), each run a sweep task of :data:`~aril_ros.cell_runner.GRAPH_RUN_CPUS` CPUs
 on its node, in a ROS domain of its own there, its log coming back with ``keep_logs:=true``. ``policy:=external``
 scores a ROS 2 policy node you run yourself (msgs_doc/README.md, "Write your own policy node"): every cell is a run of the graph with
-your node in the loop, and the surrogate is fitted to its answers through the same topics (never its weights).
+your node in the loop, and the surrogate is fitted to its answers, and ARIL-A trained against them, through the same
+topics (never its weights).
 Start the node in a domain of your choosing and name it::
 
     ROS_DOMAIN_ID=42 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python my_policy.py --ros-args -p act_dim:=6 &
@@ -39,12 +40,13 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
                              queries_per_step: on the engine as the attack counted them, through the graph the
                              probes the node answered);
                              for a name trained per mode, the file scored in each mode; per mode the pipeline's
-                             files, the surrogate's questions and fidelity, the zoo screened (best first)
+                             files, the surrogate's questions and fidelity, the zoo screened (best first), ARIL-A's
+                             training questions
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     surrogate-<mode>.pt      the black-box pipeline's copy of the policy (aril_ros.verdict); a rerun reuses it (same
                              policy, eps, horizon; for an external node: another node needs another out:= folder)
-    adversary-<mode>.pt      the ARIL-A trained against the surrogate from the zoo's strongest; a rerun reuses it
-                             (same surrogate, eps, at least the budget's steps)
+    adversary-<mode>.pt      the ARIL-A trained against the policy from the zoo's strongest; a rerun reuses it
+                             (same policy, eps, horizon, steps)
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
@@ -93,6 +95,7 @@ from .report.text import scorecard_markdown
 from .sweep import session
 from .timing import LEARNED_TIMING_ROW, TIMING_ROWS
 from .adversary import AdversaryConfig, ready_adversaries
+from .adversary_net import load_adversary
 from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
 
 
@@ -111,8 +114,6 @@ class Budget:
     """fd_fgsm's iterations: 10, FGSM^k's own, where it is scored, so that it finds what white-box FGSM^k finds"""
     scales: str
     """the eps sweep, as multiples of the mode's eps (the default of ``scales:=``)"""
-    refines: int
-    """times the surrogate is asked again where ARIL-A leads the policy, and fitted again (ARIL-A's steps split)"""
     black_box: dict | None = None
     """per mode the black-box rows it scores unless ``attacks:=`` names others (None: every one); the white-box rows
     of a file are scored beside them"""
@@ -130,7 +131,7 @@ class Budget:
 
     def describe(self) -> str:
         return (f"{self.episodes} episodes per cell, ARIL-A trained {self.adversary_steps:,} steps per mode against "
-                f"the surrogate, refined {self.refines} time{'s' if self.refines != 1 else ''}, SPSA^k "
+                f"the policy's answers, SPSA^k "
                 f"{self.spsa_iterations} x {self.spsa_samples} directions, {self.spsa_queries} queries per step"
                 f"{self.where_named('spsa')}, FGSM by finite differences {self.fd_iterations} "
                 f"iteration{'s' if self.fd_iterations != 1 else ''}{self.where_named('fd_fgsm')}")
@@ -169,13 +170,13 @@ other (Ant DR: -17.5% against -19.3%, transfer -18.9%); in physical mode a learn
 points more than SPSA^k in every screened cell, and on the DAgger learners fd_fgsm took less than FGSM^k
 (results/attacks_physical.md: -36.0% overall against -41.6%, ARIL-A -82.8%). ``attacks:=`` scores either where
 wanted."""
-# quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against the surrogate at the
-# engine's speed); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8 where named, fd_fgsm FGSM^k's 10
+# quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against its answers, 16 rows a
+# message); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8 where named, fd_fgsm FGSM^k's 10
 # iterations) and twice the paper's 1M steps
 BUDGETS = {"quick": Budget(episodes=10, adversary_steps=500_000, spsa_iterations=1, spsa_samples=2, fd_iterations=1,
-                           scales="1", refines=1, black_box=QUICK_ROWS, timing=("delay",)),
+                           scales="1", black_box=QUICK_ROWS, timing=("delay",)),
            "full": Budget(episodes=20, adversary_steps=2_000_000, spsa_iterations=5, spsa_samples=8,
-                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", refines=3, black_box=FULL_ROWS,
+                          fd_iterations=FGSMk.STEPS, scales="0.25,0.5,1,2", black_box=FULL_ROWS,
                           timing=tuple(TIMING_ROWS), timing_adversary_steps=500_000)}
 VIAS = ("engine", "graph")
 
@@ -422,21 +423,22 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
     modes' pipelines run side by side, their ARIL-A trainings at once on ``workers`` CPUs (an external node's
     scorecard starts a Ray for them alone: its cells run in this process)."""
     log(f"[scorecard] {', '.join(modes)}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
-        f"{budget.adversary_steps:,} steps against the surrogate (eps " + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
+        f"{budget.adversary_steps:,} steps against the policy's answers (eps " + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
     pipelines = [pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
-                          budget.adversary_steps, out, cfg.domain, log, cfg.horizon, budget.refines,
+                          budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
                           policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in modes]
     with session(cfg.workers, cfg.address) if cfg.policy == "external" else nullcontext():
         return dict(zip(modes, run_pipelines(pipelines, log, cfg.workers, cfg.address)))
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:
-    """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo."""
-    made_by = load_policy(made.surrogate).meta.provenance
+    """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo,
+    ARIL-A's training steps and questions."""
+    made_by, trained = load_policy(made.surrogate).meta.provenance, load_adversary(made.adversary).meta["provenance"]
     return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
             "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo),
-            "zoo_screened": made.screened, "adversary_kept": made.kept,
-            "adversary": relative(made.adversary)}
+            "zoo_screened": made.screened, "adversary": relative(made.adversary),
+            "adversary_steps": trained["steps"], "adversary_queries": trained["queries"]}
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

@@ -76,12 +76,11 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
     return fit_answers(questions, answers, env_id, cfg, made, out, log, started)
 
 
-def gather(victim, env_id: str, mode: str, eps: float, cfg: SurrogateConfig, horizon: int, rng: np.random.Generator,
-           attack=None, first: int = seeds.SURROGATE) -> tuple[np.ndarray, np.ndarray]:
+def gather(victim, env_id: str, mode: str, eps: float, cfg: SurrogateConfig, horizon: int, rng: np.random.Generator
+           ) -> tuple[np.ndarray, np.ndarray]:
     """Steps 1 and 2: the questions put to ``victim`` and its answers, grouped (``[visited, 1 + probes, dim]``):
-    ``cfg.episodes`` episodes from env seed ``first`` (under ``attack``, or every other one under noise) and
-    ``cfg.probes`` points around each step."""
-    visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon, attack, first)
+    ``cfg.episodes`` episodes (every other one under noise) and ``cfg.probes`` points around each step."""
+    visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon)
     probes = probe_points(visited, layout_of(env_id), eps, cfg.probes, rng)
     answers = ask(victim, probes.reshape(-1, probes.shape[-1])).reshape(len(visited), cfg.probes, -1)
     return (np.concatenate([visited[:, None], probes], axis=1),
@@ -133,12 +132,12 @@ def one_thread():
         torch.set_num_threads(threads)
 
 
-def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: int = HORIZON, attack=None,
-          first: int = seeds.SURROGATE) -> tuple[np.ndarray, np.ndarray]:
-    """What the victim saw, step by step, driving ``episodes`` episodes of ``horizon`` steps from env seed ``first``,
-    and what it answered (its first questions: asked once, kept); under ``attack`` (an
-    :class:`~aril_ros.attacks.Attack`), or the odd episodes under uniform ±eps noise (in ``mode``: seen, or written
-    into the simulator's state)."""
+def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: int = HORIZON
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """What the victim saw, step by step, driving ``episodes`` episodes of ``horizon`` steps from env seed
+    :data:`aril_ros.seeds.SURROGATE`, and what it answered (its first questions: asked once, kept); the odd episodes
+    under uniform ±eps noise (in ``mode``: seen, or written into the simulator's state)."""
+    first = seeds.SURROGATE
     layout = layout_of(env_id)
     sims = SimBatch(env_id, episodes, horizon)
     rngs = [episode_rng(first, e) for e in range(episodes)]
@@ -146,13 +145,10 @@ def visit(victim, env_id: str, mode: str, eps: float, episodes: int, horizon: in
     running, seen_rows, answer_rows = np.arange(episodes), [], []
     try:
         while running.size:
-            if attack is not None:
-                delta = attack.perturb(obs[running], [rngs[e] for e in running])
-            else:
-                delta = np.zeros_like(obs[running])
-                for row, e in enumerate(running):
-                    if e % 2:
-                        delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
+            delta = np.zeros_like(obs[running])
+            for row, e in enumerate(running):
+                if e % 2:
+                    delta[row, : layout.n_position] = rngs[e].uniform(-eps, eps, layout.n_position)
             seen = sims.seen(mode, obs[running], delta, running)
             seen_rows.append(seen)
             answer_rows.append(victim.act(seen))

@@ -4,7 +4,7 @@ policy contract), asked for actions as a black box. It is the ``aril_ros.victims
 
 ``RemotePolicy.act(batch)`` publishes every row at once as a probe (``observation`` tagged
 :class:`aril_ros.protocol.ProbeTag` ``"<episode>/<step>/probe/<k>"``, numbered within the step
-:meth:`RemotePolicy.begin_step` names; step 0/0 unless one is named) and waits for every tagged
+:meth:`RemotePolicy.begin_step` names; unless one is named, step 0 of an episode numbered by the process id) and waits for every tagged
 ``action``: the simulator never steps on a probe's answer. Where the policy node declares the parameter
 ``probe_batches`` true (``aril_ros_nodes.policy_node`` does), the rows go as probe batches instead, up to
 :data:`BATCH_ROWS` a message (tagged ``"<episode>/<step>/probe/<k>..<m>"``), each answered by one message: a
@@ -13,6 +13,7 @@ its own inside the call, so an attacker node can wait for answers within its own
 """
 from __future__ import annotations
 
+import os
 import time
 from types import SimpleNamespace
 
@@ -72,7 +73,10 @@ class RemotePolicy:
         self.sub = self.node.create_subscription(JointState, P.ACTION, self.on_action, STEP_QOS)
         self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.begin_step(StepTag(0, 0), 0)
+        # outside a run's steps the probes are tagged as steps of an episode numbered by this process: every client
+        # hears every answer, and two asking one node at once (the two modes' adversary trainings) must not take
+        # each other's
+        self.begin_step(StepTag(os.getpid(), 0), 0)
         if connect_timeout is not None:
             self.wait_connected(connect_timeout)
 

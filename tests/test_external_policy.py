@@ -338,7 +338,7 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
 def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
     """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
     was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and each mode's
-    surrogate's questions (asked after those two runs, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
+    surrogate's and ARIL-A training's questions (asked after those two runs, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
     file, and SPSA^k's questions are counted in test_scorecard."""
     _, card, _, tags, _ = another_architectures_card
     cells = []
@@ -351,21 +351,23 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
         per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in result["attacks"].items()}
         assert per_step == {"sensory": {"fd_fgsm": 6, "aril_a_search": 10}, "physical": {"aril_a": 1}}[mode]  # Swimmer: 3 entries
     steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
-    surrogates = sum(result["surrogate_queries"] for result in card["modes"].values())
+    surrogates = [result["surrogate_queries"] for result in card["modes"].values()]
+    trainings = [result["adversary_queries"] for result in card["modes"].values()]
+    asked = sum(surrogates) + sum(trainings)
     clean = card["modes"]["sensory"]["clean"]
     late = list(card["timing"]["policies"]["external"]["cells"].values())  # the quick budget's timing row, no probes
     assert len(late) == 1 and [e["steps"] for e in late[0]["episodes"]] == [20, 20]
     before = steps(clean) + sum(map(steps, late))  # the runs before the pipelines ask the node anything
-    assert len(tags) == before + sum(steps(cell) + cell["queries"] for cell in cells) + surrogates
+    assert len(tags) == before + sum(steps(cell) + cell["queries"] for cell in cells) + asked
     expected = [(steps(clean), 0)] + [(steps(cell), 0) for cell in late] + [(steps(cell), cell["queries"])
                                                                              for cell in cells]
-    expected[1 + len(late)] = (expected[1 + len(late)][0], expected[1 + len(late)][1] + surrogates)
+    expected[1 + len(late)] = (expected[1 + len(late)][0], expected[1 + len(late)][1] + asked)
     assert runs_answered(tags) == expected
-    # between the timing run and the first cell's, the surrogates' questions (each connection's numbered from 0): the
-    # modes' pipelines side by side, each mode's copy, then each mode's refinement
-    between = tags[before:before + surrogates]  # the first cell's own questions follow (fd_fgsm's before its first step)
-    starts = [i for i, tag in enumerate(between) if tag == "0/0/probe/0"]
-    copy_sensory, copy_physical, refine_sensory, refine_physical = np.diff([*starts, len(between)]).tolist()
-    assert [copy_sensory + refine_sensory, copy_physical + refine_physical] == [
-        r["surrogate_queries"] for r in card["modes"].values()]
+    # between the timing run and the first cell's (the modes' pipelines side by side, each connection's questions
+    # numbered from 0): each mode's copy, then each mode's ARIL-A training (workers:=1, one after the other), each as
+    # many questions as the page says
+    between = tags[before:before + asked]  # the first cell's own questions follow (fd_fgsm's before its first step)
+    starts = [i for i, tag in enumerate(between) if tag.endswith("/probe/0")]
+    assert np.diff([*starts, len(between)]).tolist() == surrogates + trainings
+    assert all(training >= 2 * 2048 for training in trainings)  # two questions a training step
     assert all(cell["queries"] == cell["queries_per_step"] * steps(cell) for cell in cells)

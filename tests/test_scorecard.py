@@ -144,7 +144,8 @@ def test_the_full_budget_scores_every_black_box_row_but_spsa_and_physical_fd_fgs
 def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_policy(small_card):
     """The rows of the pipeline's attacks, run on its files, and its line on the page: the surrogate's questions and
     held-out fidelity (its file's own record), the zoo's choice (the strongest of those screened, which are every
-    bundled adversary but the scored DAgger's own)."""
+    bundled adversary but the scored DAgger's own), ARIL-A's training against the policy from it, with its questions
+    (its file's own record)."""
     cfg, out, page, _ = small_card
     sensory = json.loads((out / "scorecard.json").read_text())["modes"]["sensory"]
     text = page.read_text()
@@ -161,11 +162,11 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
             f"{fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}, inside the ±eps box {fidelity['local_r2']:.4f}); zoo: "
             f"`{sensory['zoo']}`, the strongest of "
             f"{len(screened)} against the surrogate") in text
-    kept, returns = sensory["adversary_kept"]["kept"], sensory["adversary_kept"]["mean_return"]
-    assert kept == min(returns, key=returns.get)  # the aril_a rows run the one that took more from the surrogate
-    assert (f"ARIL-A: `{sensory['adversary']}` (trained; mean return against the surrogate {returns['trained']:.1f}"
-            if kept == "trained" else f"(the zoo's, which took more from the surrogate than the trained one: mean "
-                                      f"return {returns['zoo']:.1f} against {returns['trained']:.1f})") in text
+    trained = load_adversary(out / "adversary-sensory.pt").meta["provenance"]  # against the policy, from the zoo's
+    assert (trained["victim"], trained["settings"]["init"]) == ("dagger", sensory["zoo"])
+    assert (sensory["adversary_steps"], sensory["adversary_queries"]) == (trained["steps"], trained["queries"])
+    assert (f"ARIL-A: `{sensory['adversary']}`, trained {trained['steps']:,} steps against the policy, "
+            f"{trained['queries']:,} questions.") in text
     for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
         alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
                                     attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,

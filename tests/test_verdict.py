@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
-from aril_ros import verdict
+from aril_ros import adversary, verdict
 from aril_ros.adversary import load_adversary
 from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
@@ -26,7 +26,7 @@ from tests.conftest import AnswersOnly, local_ray
 ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
 HORIZON = 50
 STEPS = 4096
-"""ARIL-A's training against the surrogate: one PPO update."""
+"""ARIL-A's training against the policy: one PPO update."""
 
 
 def quiet(*args, **kwargs):
@@ -40,15 +40,23 @@ def one_pipeline(*args, **kwargs):
 
 def run_pipeline(folder, eps: float = EPS):
     """The pipeline on the bundled DAgger, the policy seen through :class:`AnswersOnly` (its act alone, its
-    questions counted): what it made, and the black boxes it asked."""
+    questions counted) by the surrogate's questions and by ARIL-A's training (which may read what the file is, its
+    provenance, and nothing more): what it made, and the black boxes it asked."""
     boxes = []
 
     def answers_only(policy):
         boxes.append(AnswersOnly(policy))
         return boxes[-1]
 
+    def trained_against(path, env_id=None):
+        policy = load_policy(path, env_id)
+        box = answers_only(policy)
+        box.meta = SimpleNamespace(provenance=policy.meta.provenance)
+        return box
+
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "Answers", answers_only)
+        patch.setattr(adversary, "load_policy", trained_against)
         made = one_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON)
     return made, boxes
 
@@ -67,23 +75,20 @@ def sha256(path) -> str:
 @pytest.mark.slow
 def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_question(pipeline):
     folder, made, boxes = pipeline
-    # the policy connected while the surrogate's questions are put (the copy, then the refinement), never while the
-    # zoo is screened or ARIL-A trained: those ask the surrogate
-    assert len(boxes) == 2 and all(box.asked > 0 for box in boxes)
+    # the policy asked for the surrogate's questions, then by ARIL-A's training, and by nothing else: the zoo is
+    # screened against the surrogate
+    copy, training = boxes
     surrogate = load_policy(made.surrogate).meta.provenance
-    assert sum(box.asked for box in boxes) == surrogate["queries"]
+    assert copy.asked == surrogate["queries"] > 0
     assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
                                                                                                HORIZON)
-    # ARIL-A was trained against the surrogate file, from the zoo's strongest (the one at the head of the screening),
-    # or is that one where it took more return from the surrogate
-    kept = made.kept
-    assert kept["kept"] == min(kept["mean_return"], key=kept["mean_return"].get)
-    if kept["kept"] == "trained":
-        trained = load_adversary(made.adversary).meta["provenance"]
-        assert trained["victim_sha256"] == sha256(made.surrogate) and trained["steps"] >= STEPS
-    else:
-        assert sha256(made.adversary) == sha256(made.zoo)
-    assert str(made.zoo) == made.screened[0][1] and made.screened == sorted(made.screened)
+    # ARIL-A was trained against the policy's answers, counted in its file, from the zoo's strongest (the one at the
+    # head of the screening)
+    trained = load_adversary(made.adversary).meta["provenance"]
+    assert trained["victim_sha256"] == sha256(policy_file("dagger", ENV)) and trained["steps"] >= STEPS
+    assert trained["queries"] == training.asked >= 2 * STEPS
+    assert trained["settings"]["init"] == made.screened[0][1] == str(made.zoo)
+    assert made.screened == sorted(made.screened)
     assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
 
 
@@ -206,14 +211,9 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
     assert (again.zoo, again.screened) == (first.zoo, first.screened)
     other, boxes = run_pipeline(rerun, eps=0.2)
-    assert len(boxes) == 2 and boxes[0].asked > 0  # the policy asked again, for the new surrogate
-    assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
-    if other.kept["kept"] == "trained":
-        retrained = load_adversary(other.adversary)
-        assert retrained.eps == 0.2 and retrained.meta["provenance"]["victim_sha256"] == sha256(other.surrogate)
-    else:  # the zoo's (at its own eps, which the aril_a rows rescale) took more from the new surrogate
-        assert sha256(other.adversary) == sha256(other.zoo)
-    assert other.surrogate.read_bytes() != before[0][1]
+    assert len(boxes) == 2 and all(box.asked > 0 for box in boxes)  # the policy asked again: a new copy, a training
+    assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2 and load_adversary(other.adversary).eps == 0.2
+    assert other.surrogate.read_bytes() != before[0][1] and other.adversary.read_bytes() != before[1][1]
 
 
 @pytest.mark.slow
@@ -230,7 +230,7 @@ def test_pipelines_side_by_side_make_the_files_each_makes_alone(pipeline, tmp_pa
     for name, kind in ((alone.surrogate.name, "policy"), (alone.adversary.name, "adversary")):
         ours, theirs = (load_weights(path, kind)[1] for path in (tmp_path / name, folder / name))
         assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours), name
-    assert (both[0].screened, both[0].kept) == (alone.screened, alone.kept)
+    assert both[0].screened == alone.screened
     assert load_adversary(both[1].adversary).meta["provenance"]["settings"]["mode"] == "physical"
 
 
@@ -260,25 +260,31 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
     assert len(zoo_members(ENV, MODE, None)) == len(zoo_members(ENV, MODE, own)) + 3
     folder = tmp_path / "as-node"
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(verdict, "answering", lambda name, env, mode, domain: AsNode(name))
+        patch.setattr(verdict, "answering", lambda name, env, mode, domain: NodeStandIn())
+        patch.setattr(adversary.plugins, "load", lambda group, name: lambda env_id: NodeStandIn())
         made = one_pipeline("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
                             leave_out="dagger")
     screened = {member for _, member in made.screened}
     assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own)}
+    assert load_adversary(made.adversary).meta["provenance"]["victim"] == "ros"
 
 
-class AsNode:
-    """The bundled DAgger learner's answers standing in for a node (``answering``'s context for victim ros)."""
+class NodeStandIn(AnswersOnly):
+    """The bundled DAgger learner's answers standing in for a node: ``answering``'s context for victim ros, and the
+    live victim ARIL-A's training connects to (what it is, its answers, close)."""
 
-    def __init__(self, name):
-        assert name == "ros"
-        self.box = AnswersOnly(resolve_policy("dagger", ENV))
+    def __init__(self):
+        super().__init__(resolve_policy("dagger", ENV))
+        self.meta = SimpleNamespace(provenance={"victim": "a stand-in for a node"})
 
     def __enter__(self):
-        return self.box
+        return self
 
     def __exit__(self, *exc):
         return False
+
+    def close(self):
+        pass
 
 
 def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
@@ -423,23 +429,6 @@ def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     lines = needed([{"quick": older}, {"quick": out_of_reach}], ["quick"])
     assert lines.strip().endswith(": aril_a; no set of the rows every cell scored finds it in "
                                   f"{out_of_reach['env']} {out_of_reach['policy']}")
-
-
-def test_the_stronger_of_the_zoos_best_and_the_trained_adversary_is_kept(tmp_path):
-    """Both run against the surrogate on the screening episodes (the pipeline's final screening), keep_stronger keeps
-    the one that takes more return as the aril_a file, whichever side it is on: the same file wins either way round."""
-    from aril_ros.verdict import keep_stronger, screen_zoo
-    members = zoo_members(ENV, MODE, None)[:2]
-    surrogate = fit_surrogate(resolve_policy("dagger", ENV), ENV, MODE, EPS, tmp_path / "surrogate.pt",
-                              SurrogateConfig(episodes=2), "dagger", quiet, HORIZON)
-    strongest = verdict.relative(min(zip(screen_zoo(members, surrogate, ENV, MODE, EPS, "expert", HORIZON), members))[1])
-    for zoo, trained in (members, members[::-1]):
-        adversary = tmp_path / f"adversary-{MODE}.pt"
-        shutil.copyfile(trained, adversary)
-        returns = screen_zoo([adversary, zoo], surrogate, ENV, MODE, EPS, "expert", HORIZON)
-        kept = keep_stronger(zoo, adversary, dict(zip(("trained", "zoo"), returns)), MODE, quiet)
-        assert kept["kept"] == ("zoo" if verdict.relative(zoo) == strongest else "trained")
-        assert sha256(adversary) == sha256(Path(strongest))
 
 
 def test_benchmark_adds_a_row_a_cell_was_scored_without_on_its_own_episodes(tmp_path, monkeypatch):

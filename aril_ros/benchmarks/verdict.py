@@ -36,6 +36,7 @@ from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
 from ..scorecard import BUDGETS, PIPELINE_ATTACKS, ScorecardConfig, scorecard
+from ..verdict import PIPELINE
 
 BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search")
 WITHIN = 0.95
@@ -185,7 +186,7 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
-            "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu()}
+            "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE}
 
 
 def verdict_drop(cell: dict) -> dict:
@@ -244,7 +245,7 @@ def table(rows: list[dict], budgets: list[str]) -> str:
         first = next(iter(cell.values()))
         ref = first["reference"]
         parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
-                 f"({c['black_box_worst']}{episodes_note(c)}) | "
+                 f"({c['black_box_worst']}{episodes_note(c)}{pipeline_note(c)}) | "
                  f"{ratio(c, first)} | {c['minutes']:.1f}" if c else "– | – | –"
                  for c in (cell.get(b) for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
@@ -259,6 +260,15 @@ def episodes_note(cell: dict) -> str:
         return ""
     still = episodes_to_pin(verdict_drop(cell), cell["episodes"]) is not None
     return f"; {cell['episodes']} episodes" + ("; the interval still as wide as the drop" if still else "")
+
+
+def pipeline_note(cell: dict) -> str:
+    """For a cell whose pipeline rows (:data:`aril_ros.scorecard.PIPELINE_ATTACKS`) an older pipeline made, which
+    one: before pipeline 4 (cells that record none) ARIL-A was trained against the surrogate."""
+    made = cell.get("pipeline")
+    if made == PIPELINE:
+        return ""
+    return "; ARIL-A trained against the surrogate" if made is None or made < 4 else f"; pipeline {made}"
 
 
 def ratio(cell: dict, first: dict) -> str:

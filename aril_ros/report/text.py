@@ -299,15 +299,16 @@ HOW_ATTACKS_ASK = (
     "its questions and held-out fidelity below); it asks the policy nothing while it attacks;",
     "- ARIL-A from the zoo: the bundled adversary (none trained against this very file) that took the most return "
     "from the surrogate on screening episodes; one question per step when the policy's action is an input of it;",
-    "- ARIL-A: trained against the surrogate, from the zoo's adversary (or that adversary, where it took more return "
-    "from the surrogate); asks as the zoo's;",
+    "- ARIL-A: trained from the zoo's adversary against the policy's answers (two questions a training step: its "
+    "action on the true state and on the perturbed one; the count below); asks as the zoo's;",
     "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
     "ARIL-A's own question, the most damaging applied;",
     "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
 
 
 def pipeline_lines(mode_result: dict) -> list[str]:
-    """The page's line on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice."""
+    """The page's line on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice,
+    ARIL-A's training."""
     if "surrogate" not in mode_result:
         return []
     fidelity = mode_result["surrogate_fidelity"]
@@ -316,18 +317,8 @@ def pipeline_lines(mode_result: dict) -> list[str]:
             f"{fidelity['local_r2']:.4f}); "
             + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
                "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
-            + f"ARIL-A: `{mode_result['adversary']}`" + kept_line(mode_result.get("adversary_kept")) + ".", ""]
-
-
-def kept_line(kept: dict | None) -> str:
-    """Which adversary the aril_a rows run: the trained one, or the zoo's when it took more from the surrogate."""
-    if not kept:
-        return ""
-    returns = kept["mean_return"]
-    if kept["kept"] == "trained":
-        return f" (trained; mean return against the surrogate {returns['trained']:.1f}, the zoo's {returns['zoo']:.1f})"
-    return (f" (the zoo's, which took more from the surrogate than the trained one: mean return {returns['zoo']:.1f} "
-            f"against {returns['trained']:.1f})")
+            + f"ARIL-A: `{mode_result['adversary']}`, trained {mode_result['adversary_steps']:,} steps against the "
+            f"policy, {mode_result['adversary_queries']:,} questions.", ""]
 
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
