@@ -84,10 +84,11 @@ class Offline:
 
 
 def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
-    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for work that puts no
-    question to the policy (an :class:`Offline` job, or an adversary's training), and the work all asked for runs at
-    once as sweep tasks (``workers`` CPUs of a local Ray, or the cluster at ``address``); the questions to the policy
-    stay one pipeline at a time. Two modes fit, screen and train on two CPUs in the time of one."""
+    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for a job (an
+    :class:`Offline` one, which puts no question to the policy, or an adversary's training, which asks it on its own
+    connection), and the jobs all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the
+    cluster at ``address``); the surrogates' questions stay one pipeline at a time. Two modes fit, screen and train on
+    two CPUs in the time of one."""
     made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
     asked: dict[int, AdversaryConfig | Offline] = {}
 
