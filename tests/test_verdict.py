@@ -289,14 +289,16 @@ class NodeStandIn(AnswersOnly):
 
 def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
                reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)",
-               policy: str = "dagger") -> dict:
+               policy: str = "dagger", pipeline: int | None = verdict.PIPELINE) -> dict:
     """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop, the reference and
-    the CPU they were scored on."""
+    the CPU they were scored on, the pipeline that made its files (None: a cell of before pipeline 4, which recorded
+    none)."""
     from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
     figures = {"env": "HalfCheetah-v5", "policy": policy, "mode": mode, "budget": budget, "minutes": 1.0,
                "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
-               "reference": {"attack": "fgsm_k", "drop_pct": reference}, "cpu": cpu}
+               "reference": {"attack": "fgsm_k", "drop_pct": reference}, "cpu": cpu,
+               **({"pipeline": pipeline} if pipeline else {})}
     return figures if episodes is None else {**figures, "episodes": episodes}
 
 
@@ -374,7 +376,8 @@ def test_benchmark_scores_a_cell_again_on_more_episodes_where_its_interval_is_as
 def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still_to_score(tmp_path):
     """A run resumed or stopped midway writes the table of every cell of its grid already scored, by it or an earlier
     run: a cell's budget still to score shows a dash, a cell no budget scored is left out. A budget scored on another
-    CPU model is judged against the reference scored with it, which its ratio names."""
+    CPU model is judged against the reference scored with it, which its ratio names; a cell an older pipeline made
+    says so."""
     import json
     from aril_ros.benchmarks.verdict import VerdictBenchConfig, cell_folder, needed, scored_rows, table
     cfg = VerdictBenchConfig(out=str(tmp_path), episodes=20)
@@ -382,7 +385,7 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     scored_cells = {("dagger", "sensory", "quick"): {"fd_fgsm": -45.0},
                     ("dagger", "sensory", "full"): {"fd_fgsm": -55.0}, ("dagger", "physical", "quick"): {"aril_a": -90.0},
                     ("bc", "physical", "quick"): {"aril_a": -70.0}, ("bc", "physical", "full"): {"aril_a": -66.0}}
-    elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)"}
+    elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)", "pipeline": None}
     for (policy, mode, budget), drops in scored_cells.items():
         folder = cell_folder(cfg, env, policy, mode, budget)
         folder.mkdir(parents=True)
@@ -397,8 +400,8 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     assert "| -45.0% [-46.0, -44.0] (fd_fgsm) | 0.90 | 1.0 | -55.0% [-56.0, -54.0] (fd_fgsm) | 1.10 | 1.0 |" in lines[2]
     assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
     assert lines[4].startswith("| HalfCheetah-v5 | bc | physical |")
-    assert lines[4].endswith("| -70.0% [-71.0, -69.0] (aril_a) | 1.40 | 1.0 | -66.0% [-67.0, -65.0] (aril_a) | "
-                             "1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 | -50.0% (fgsm_k) |")
+    assert lines[4].endswith("| -70.0% [-71.0, -69.0] (aril_a) | 1.40 | 1.0 | -66.0% [-67.0, -65.0] (aril_a; ARIL-A "
+                             "trained against the surrogate) | 1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 | -50.0% (fgsm_k) |")
     full_alone = scored_rows(cfg, [(env, "bc", "physical")], ["full"])
     assert table(full_alone, ["full"]).splitlines()[2].endswith("| 1.10 | 1.0 | -60.0% (fgsm_k) |")
     assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
