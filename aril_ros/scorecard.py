@@ -423,7 +423,8 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
     modes' pipelines run side by side, their ARIL-A trainings at once on ``workers`` CPUs (an external node's
     scorecard starts a Ray for them alone: its cells run in this process)."""
     log(f"[scorecard] {', '.join(modes)}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
-        f"{budget.adversary_steps:,} steps against the policy's answers (eps " + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
+        f"{budget.adversary_steps:,} steps against the policy's answers (eps "
+        + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
     pipelines = [pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
                           budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
                           policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in modes]

@@ -70,18 +70,19 @@ def fit_surrogate(victim, env_id: str, mode: str, eps: float, out: str | Path, c
     """The surrogate of ``victim`` (anything with ``act(obs_batch)``) in ``mode`` at ``eps``, from episodes of
     ``horizon`` steps, written to ``out``."""
     started = time.time()
-    questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, np.random.default_rng(cfg.seed))
+    questions, answers = gather(victim, env_id, mode, eps, cfg, horizon)
     made = {"victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
             "queries": int(questions[..., 0].size)}
     return fit_answers(questions, answers, env_id, cfg, made, out, log, started)
 
 
-def gather(victim, env_id: str, mode: str, eps: float, cfg: SurrogateConfig, horizon: int, rng: np.random.Generator
+def gather(victim, env_id: str, mode: str, eps: float, cfg: SurrogateConfig, horizon: int
            ) -> tuple[np.ndarray, np.ndarray]:
     """Steps 1 and 2: the questions put to ``victim`` and its answers, grouped (``[visited, 1 + probes, dim]``):
-    ``cfg.episodes`` episodes (every other one under noise) and ``cfg.probes`` points around each step."""
+    ``cfg.episodes`` episodes (every other one under noise) and ``cfg.probes`` points around each step, drawn from
+    ``cfg.seed``."""
     visited, driven = visit(victim, env_id, mode, eps, cfg.episodes, horizon)
-    probes = probe_points(visited, layout_of(env_id), eps, cfg.probes, rng)
+    probes = probe_points(visited, layout_of(env_id), eps, cfg.probes, np.random.default_rng(cfg.seed))
     answers = ask(victim, probes.reshape(-1, probes.shape[-1])).reshape(len(visited), cfg.probes, -1)
     return (np.concatenate([visited[:, None], probes], axis=1),
             np.concatenate([driven[:, None], answers], axis=1))

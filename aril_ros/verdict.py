@@ -146,7 +146,7 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     cfg = SurrogateConfig()
     expert_file = shipped(for_task(expert, env_id))
     with answering(victim_name, env_id, mode, domain) as victim:
-        questions, answers = gather(victim, env_id, mode, eps, cfg, horizon, np.random.default_rng(cfg.seed))
+        questions, answers = gather(victim, env_id, mode, eps, cfg, horizon)
         queries = victim.asked
     yield from fitting(questions, answers, env_id, {**wanted, "queries": queries}, surrogate, log)
     left_out = victim_digest(leave_out or victim_name, env_id, mode)

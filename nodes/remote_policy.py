@@ -4,9 +4,9 @@ policy contract), asked for actions as a black box. It is the ``aril_ros.victims
 
 ``RemotePolicy.act(batch)`` publishes every row at once as a probe (``observation`` tagged
 :class:`aril_ros.protocol.ProbeTag` ``"<episode>/<step>/probe/<k>"``, numbered within the step
-:meth:`RemotePolicy.begin_step` names; unless one is named, step 0 of an episode numbered by the process id) and waits for every tagged
-``action``: the simulator never steps on a probe's answer. Where the policy node declares the parameter
-``probe_batches`` true (``aril_ros_nodes.policy_node`` does), the rows go as probe batches instead, up to
+:meth:`RemotePolicy.begin_step` names; unless one is named, step 0 of an episode numbered by the process id) and
+waits for every tagged ``action``: the simulator never steps on a probe's answer. Where the policy node declares the
+parameter ``probe_batches`` true (``aril_ros_nodes.policy_node`` does), the rows go as probe batches instead, up to
 :data:`BATCH_ROWS` a message (tagged ``"<episode>/<step>/probe/<k>..<m>"``), each answered by one message: a
 message and its callbacks, not the policy's arithmetic, are what a probe costs. It spins a context, node and executor of
 its own inside the call, so an attacker node can wait for answers within its own callback.

@@ -338,8 +338,8 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
 def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
     """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
     was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and each mode's
-    surrogate's and ARIL-A training's questions (asked after those two runs, before the first cell's). The zoo's row asks as the ARIL-A row does, with another
-    file, and SPSA^k's questions are counted in test_scorecard."""
+    surrogate's and ARIL-A training's questions (asked after those two runs, before the first cell's). The zoo's row
+    asks as the ARIL-A row does, with another file, and SPSA^k's questions are counted in test_scorecard."""
     _, card, _, tags, _ = another_architectures_card
     cells = []
     for mode, result in card["modes"].items():

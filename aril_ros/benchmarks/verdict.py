@@ -264,11 +264,11 @@ def episodes_note(cell: dict) -> str:
 
 def pipeline_note(cell: dict) -> str:
     """For a cell whose pipeline rows (:data:`aril_ros.scorecard.PIPELINE_ATTACKS`) an older pipeline made, which
-    one: before pipeline 4 (cells that record none) ARIL-A was trained against the surrogate."""
+    one: cells record it since pipeline 4; those that record none had ARIL-A trained against the surrogate."""
     made = cell.get("pipeline")
-    if made == PIPELINE:
-        return ""
-    return "; ARIL-A trained against the surrogate" if made is None or made < 4 else f"; pipeline {made}"
+    if made is None:
+        return "; ARIL-A trained against the surrogate"
+    return "" if made == PIPELINE else f"; pipeline {made}"
 
 
 def ratio(cell: dict, first: dict) -> str:
