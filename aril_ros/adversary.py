@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from . import plugins, seeds
-from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, load_adversary, save_adversary
+from .adversary_net import INPUTS, POLICIES, AdversaryNet, input_rows, load_adversary, pushes, save_adversary
 from .args import arg
 from .envs import layout_of
 from .policy import Answers, load_policy, policy_file, resolve_policy
@@ -48,6 +48,12 @@ from .step import disagreement
 from .sweep import Produced, digest_of, run_tasks, shipped
 from .timing import Timeline, TimingBudget, TimingChoice, timing_arg
 from .timing_adversary import TimingNet, load_timing_adversary, save_timing_adversary
+
+
+OBJECTIVES = ("disagreement", "return")
+"""The values of ``objective:=`` (:class:`AdversaryConfig`)."""
+TERMINAL = ("nothing", "bootstrap", "held")
+"""The values of ``terminal:=`` (:class:`AdversaryConfig`)."""
 
 
 class RunningStd:
@@ -99,7 +105,11 @@ class AdversaryConfig:
     hidden: int = arg(64, "width of the two hidden layers", low=1, high=4096)
     policy: str = arg("categorical", "a value adversary's: categorical: one of {-eps, 0, +eps} per zero-order entry (the corners of the "
                                      "L-infinity box, where a one-step attack's optimum lies); gaussian: a Normal "
-                                     "around eps*tanh(net), clipped to the box (the adversaries made before)")
+                                     "around eps*tanh(net), clipped to the box (the adversaries made before); "
+                                     "directed: a Normal over a direction in the victim's action space, turned into "
+                                     "the corner that moves the action furthest along it by finite differences of the "
+                                     "victim's answers (PA-AD's director and actor, black-box; 2 questions per "
+                                     "zero-order entry a step)")
     inputs: str = arg("state+actions", "a value adversary's: state: the true observation alone; state+actions: also the victim's action "
                                        "on it unperturbed and the expert's (queried answers, never weights)")
     warmup: int = arg(200, "steps per simulator of the unattacked victim that set the input normalisation",
@@ -107,6 +117,15 @@ class AdversaryConfig:
     norm_reward: bool = arg(True, "divide rewards by the running std of the discounted return")
     baseline: bool = arg(True, "value = the victim's unperturbed disagreement at the state (computed exactly) + a "
                               "learned remainder, instead of all learned (a control variate: the objective is the same)")
+    objective: str = arg("disagreement", "what the adversary maximises, summed over the episode with gamma: "
+                                        "disagreement: the victim's with the expert on the true state (the paper's "
+                                        "ARIL-A); return: minus the victim's reward from the env (the optimal attack "
+                                        "of Zhang et al. 2021; no exact part in the value, whatever baseline:= says)")
+    terminal: str = arg("nothing", "what an episode the victim ended early (Ant fallen over: the env's termination) is "
+                                   "worth to the adversary after its last step: nothing (an early end stops the "
+                                   "disagreement it collects, so toppling the victim costs it reward); bootstrap: the "
+                                   "value of the state it ended in, as at the time limit; held: that state's "
+                                   "disagreement at every step after, gamma / (1 - gamma) times it")
     seed: int = arg(0, "seed of the initial weights and the sampling; the env resets take the seed's training block "
                        "(aril_ros.seeds.adversary_training)", low=0, high=2**31 - 1)
     init: str = arg("", "start from this adversary file (same env, mode, eps and width; its input scaling is kept) "
@@ -270,6 +289,11 @@ def check_config(cfg: AdversaryConfig) -> None:
         raise ValueError(f"eps:= must be > 0, got {cfg.eps}")
     check_name("adversary policy", cfg.policy, POLICIES)
     check_name("adversary inputs", cfg.inputs, INPUTS)
+    check_name("adversary objective", cfg.objective, OBJECTIVES)
+    check_name("adversary terminal", cfg.terminal, TERMINAL)
+    if cfg.terminal == "held" and cfg.gamma >= 1.0:
+        raise ValueError("terminal:=held values the state an episode ended in as held forever, gamma / (1 - gamma) "
+                         f"times its disagreement: it needs gamma:= < 1, got {cfg.gamma}")
 
 
 class EnvSeeds:
@@ -348,8 +372,11 @@ class ValuePlay:
 
     def act(self, sample: torch.Tensor, obs: np.ndarray, rows) -> np.ndarray:
         """The action applied: the victim's on what the perturbation made it see."""
-        delta = np.zeros_like(obs)
-        delta[:, : self.net.n_position] = self.net.delta(sample).double().numpy()
+        n_pos, delta = self.net.n_position, np.zeros_like(obs)
+        if self.net.directed:
+            delta[:, :n_pos] = pushes(self.victim.act, obs, sample.double().numpy()[:, None], self.net.eps, n_pos)[:, 0]
+        else:
+            delta[:, :n_pos] = self.net.delta(sample).double().numpy()
         return self.victim.act(self.sims.seen(self.mode, obs, delta, rows))
 
     def restart(self, row: int) -> None:
@@ -425,7 +452,8 @@ class Collector:
 
     def unperturbed_loss(self, clean: np.ndarray | None, label: np.ndarray) -> np.ndarray:
         """The disagreement the victim would have without the attack: the exact part of the value."""
-        return disagreement(clean, label) if self.cfg.baseline else np.zeros(len(label))
+        exact = self.cfg.baseline and self.cfg.objective == "disagreement"
+        return disagreement(clean, label) if exact else np.zeros(len(label))
 
     def collect(self) -> Rollout:
         cfg, n, T = self.cfg, len(self.sims), self.cfg.rollout
@@ -450,20 +478,24 @@ class Collector:
             # every visited state, carries that part of the value
             base = self.unperturbed_loss(clean, label)
             buf.obs[t], buf.sample[t] = x, sample
-            self.discounted = self.discounted * cfg.gamma + loss
+            self.obs, env_reward, terminated, truncated = self.sims.step(action, rows)
+            gain = loss if cfg.objective == "disagreement" else -env_reward
+            self.discounted = self.discounted * cfg.gamma + gain
             self.return_scale.update(self.discounted)
             # in units of the return's spread, so the value loss and the clip ranges keep their meaning
             # whether a step's disagreement is 0.001 or 10
             scale = self.return_scale.std if cfg.norm_reward else 1.0
-            reward = torch.as_tensor(loss / scale, dtype=torch.float32)
+            reward = torch.as_tensor(gain / scale, dtype=torch.float32)
             buf.base[t] = torch.as_tensor(base / scale, dtype=torch.float32)
             buf.value[t] = remainder + buf.base[t]
-            self.obs, env_reward, terminated, truncated = self.sims.step(action, rows)
             self.episode_loss += loss
             self.episode_return += env_reward
             stopped = np.flatnonzero(truncated & ~terminated)  # time limit: bootstrap from the state it stopped in
             if stopped.size:  # all at once: every simulator reaches the horizon at the same step
                 reward[torch.as_tensor(stopped)] += cfg.gamma * self.value_of(self.obs[stopped], scale, stopped)
+            ended = np.flatnonzero(terminated)
+            if ended.size and cfg.terminal != "nothing":
+                reward[torch.as_tensor(ended)] += self.after_end(self.obs[ended], scale, ended)
             for i in np.flatnonzero(terminated | truncated):
                 self.discounted[i] = 0.0
                 self.finished_loss.append(self.episode_loss[i])
@@ -484,6 +516,14 @@ class Collector:
             remainder = self.net.value(torch.as_tensor(self.play.inputs(states, clean, label, rows),
                                                        dtype=torch.float32))
         return remainder + torch.as_tensor(self.unperturbed_loss(clean, label) / scale, dtype=torch.float32)
+
+    def after_end(self, states: np.ndarray, scale: float, rows) -> torch.Tensor:
+        """What ``terminal`` makes the rest of an episode ended early in ``states`` worth (see its help)."""
+        if self.cfg.terminal == "bootstrap":
+            return self.cfg.gamma * self.value_of(states, scale, rows)
+        clean, label = self.victim.act(states), self.expert.act(states)
+        held = self.cfg.gamma / (1.0 - self.cfg.gamma)
+        return torch.as_tensor(held * disagreement(clean, label) / scale, dtype=torch.float32)
 
     def recent_loss(self) -> float | None:
         recent = self.finished_loss[-4 * len(self.sims):]

@@ -6,7 +6,12 @@ entries, within ``±eps``. Two choices, recorded in the file's meta:
 - ``policy``: ``categorical`` (default for new files) — per zero-order entry, one of ``{-eps, 0, +eps}``.
   A one-step attack's optimum lies on the corners of the L-infinity box, which this policy reaches by
   one choice per entry; ``gaussian`` (files made before it) — mean ``eps * tanh(net(x))`` and a
-  state-independent std initialised to ``0.1 * eps``, samples clipped to the box.
+  state-independent std initialised to ``0.1 * eps``, samples clipped to the box; ``directed`` — PA-AD's split
+  (Sun et al. 2022) made black-box: the network is a director, a Normal over a direction in the victim's
+  *action* space, and :func:`pushes` the actor, the corner of the box that moves the victim's action furthest
+  along it to first order, from the victim's answers alone (finite differences, no gradients). The director
+  learns where the victim's action should go; the actor finds, state by state, how to send it there, which a
+  map from states to perturbations would have to learn for every state.
 - ``inputs``: ``state`` — the *true* observation ``s`` alone; ``state+actions`` — ``s``, the victim's
   action on ``s`` unperturbed and the expert's action on ``s``. Both actions are answers to queries the
   attack may make of a black box (never its weights): the map need not rediscover the victim from the
@@ -30,10 +35,33 @@ from torch import nn
 
 from .policy import PolicyFileError, load_weights, save_weights
 
-POLICIES = ("categorical", "gaussian")
+POLICIES = ("categorical", "gaussian", "directed")
 INPUTS = ("state", "state+actions")
 CHOICES = 3
 """A categorical adversary's choices per entry, in order: -eps, 0, +eps."""
+DIFFERENCE = 0.01
+"""The finite differences' step as a share of eps (the directed actor's, FGSM by finite differences'): small enough
+for the local slope, large enough above float32's rounding."""
+
+
+def difference_moves(n_position: int, obs_dim: int, step: float) -> np.ndarray:
+    """``2 n_position`` observation offsets: ``+step`` on each zero-order entry in turn, then ``-step`` on each."""
+    moves = np.zeros((2 * n_position, obs_dim))
+    moves[np.arange(n_position), np.arange(n_position)] = step
+    moves[n_position + np.arange(n_position), np.arange(n_position)] = -step
+    return moves
+
+
+def pushes(ask, obs: np.ndarray, directions: np.ndarray, eps: float, n_position: int) -> np.ndarray:
+    """The directed adversary's actor: for each row of ``obs`` and each of its ``directions`` (``n × k × act_dim``),
+    the perturbation of the zero-order entries (``n × k × n_position``) that moves the victim's action furthest
+    along the direction to first order, ``eps * sign(J^T d)``. ``J``, the victim's action's slope along each
+    zero-order entry, comes from central differences: ``2 n_position`` questions a row, one ``ask`` for all."""
+    n, obs_dim = obs.shape
+    moves = difference_moves(n_position, obs_dim, DIFFERENCE * eps)
+    answers = ask((obs[:, None, :] + moves[None]).reshape(n * len(moves), obs_dim)).reshape(n, len(moves), -1)
+    slope = answers[:, :n_position] - answers[:, n_position:]  # n × n_position × act_dim, times 2 step
+    return eps * np.sign(np.einsum("npa,nka->nkp", slope, directions))
 
 
 def mlp(n_in: int, hidden: int, n_out: int) -> nn.Sequential:
@@ -71,11 +99,15 @@ class AdversaryNet(nn.Module):
         n_in, n_out, hidden = input_size(meta), meta["n_position"], meta["hidden"]
         self.eps, self.n_position = float(meta["eps"]), n_out
         self.categorical = meta["policy"] == "categorical"
+        self.directed = meta["policy"] == "directed"
         self.takes_actions = meta["inputs"] == "state+actions"
-        self.mean_net = mlp(n_in, hidden, n_out * CHOICES if self.categorical else n_out)
+        # a sample's columns: a choice or a perturbation per zero-order entry, or a direction in action space
+        self.sample_width = meta["act_dim"] if self.directed else n_out
+        self.mean_net = mlp(n_in, hidden, n_out * CHOICES if self.categorical else self.sample_width)
         self.value_net = mlp(n_in, hidden, 1)
-        if not self.categorical:
-            self.log_std = nn.Parameter(torch.full((n_out,), math.log(0.1 * self.eps)))
+        if not self.categorical:  # a direction's scale does not matter: unit spread to start with
+            self.log_std = nn.Parameter(torch.full((self.sample_width,), 0.0 if self.directed else
+                                                   math.log(0.1 * self.eps)))
         self.register_buffer("obs_mean", torch.tensor(meta["obs_mean"], dtype=torch.float32))
         self.register_buffer("obs_std", torch.tensor(meta["obs_std"], dtype=torch.float32))
 
@@ -86,13 +118,14 @@ class AdversaryNet(nn.Module):
         return ((x.float() - self.obs_mean) / self.obs_std).clamp(-10.0, 10.0)
 
     def distribution(self, x: torch.Tensor) -> torch.distributions.Distribution:
-        """Per zero-order entry: a categorical over the choice index, or a Normal over the perturbation."""
+        """Per zero-order entry: a categorical over the choice index, or a Normal over the perturbation; directed: a
+        Normal over the direction."""
         out = self.mean_net(self.normalise(x))
         if self.categorical:
             # unvalidated: the samples are the distribution's own, and the checks cost more than the net
             return torch.distributions.Categorical(logits=out.reshape(len(x), self.n_position, CHOICES),
                                                    validate_args=False)
-        mean = self.eps * torch.tanh(out)
+        mean = out if self.directed else self.eps * torch.tanh(out)
         return torch.distributions.Normal(mean, self.log_std.exp().expand(len(x), -1), validate_args=False)
 
     def log_prob_and_entropy(self, x: torch.Tensor, sample: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -112,11 +145,6 @@ class AdversaryNet(nn.Module):
     def input_width(self) -> int:
         return input_size(self.meta)
 
-    @property
-    def sample_width(self) -> int:
-        """Columns of a sample: one per zero-order entry."""
-        return self.n_position
-
     def sample(self, x: torch.Tensor, gen: torch.Generator, entropy: bool = False
                ) -> tuple[torch.Tensor, torch.Tensor, float | None]:
         """A training sample per row (:meth:`draw`), its log-probability and (``entropy``) the mean entropy per entry."""
@@ -125,20 +153,24 @@ class AdversaryNet(nn.Module):
         return sample, dist.log_prob(sample).sum(-1), (float(dist.entropy().mean()) if entropy else None)
 
     def draw(self, dist: torch.distributions.Distribution, gen: torch.Generator) -> torch.Tensor:
-        """A sample of ``dist`` from ``gen`` (choice indices, or perturbations before clipping)."""
+        """A sample of ``dist`` from ``gen`` (choice indices, perturbations before clipping, or directions)."""
         if self.categorical:
             flat = torch.multinomial(dist.probs.reshape(-1, CHOICES), 1, generator=gen)
             return flat.reshape(dist.probs.shape[:-1]).float()
         return dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=gen)
 
     def delta(self, sample: torch.Tensor) -> torch.Tensor:
-        """The perturbation of the zero-order entries a sample stands for, within ±eps."""
+        """The perturbation of the zero-order entries a sample stands for, within ±eps (a direction's: :func:`pushes`,
+        which asks the victim)."""
+        if self.directed:
+            raise ValueError("a directed adversary's sample is a direction: pushes() turns it into a perturbation")
         if self.categorical:  # in float64, so the corners are exactly ±eps
             return self.eps * (sample.double() - 1.0)
         return sample.clamp(-self.eps, self.eps)
 
     def most_likely(self, dist: torch.distributions.Distribution) -> torch.Tensor:
-        """The perturbation ``dist`` ranks highest: each entry's likeliest choice, or the mean."""
+        """The perturbation ``dist`` ranks highest: each entry's likeliest choice, or the mean (directed: the
+        direction)."""
         return self.delta(dist.probs.argmax(-1).float()) if self.categorical else dist.mean
 
     def value(self, x: torch.Tensor) -> torch.Tensor:

@@ -16,7 +16,7 @@ import inspect
 import numpy as np
 import torch
 
-from .adversary_net import AdversaryNet, load_adversary
+from .adversary_net import DIFFERENCE, AdversaryNet, difference_moves, load_adversary, pushes
 from .envs import ObsLayout
 from .policy import in_blocks, load_policy
 from .registry import ATTACKS, QUERY_ATTACKS, WHITE_BOX, adversary_path, check_name
@@ -208,7 +208,7 @@ class FiniteDifferenceFGSM(QueryAttack):
     answers, one zero-order entry at a time (ZOO's coordinate-wise estimate, Chen et al. 2017).
 
     The perturbed entries are few (HalfCheetah 8, Ant 13, Swimmer 3), so ``2 n`` questions, every entry moved by
-    ``± h`` (``h = eps / 100``, small enough for the local slope, large enough above float32's rounding), recover
+    ``± h`` (``h = eps / 100``, :data:`~aril_ros.adversary_net.DIFFERENCE`), recover
     the gradient's sign that white-box FGSM takes from the weights. Each of the ``k`` iterations steps
     ``eps / k`` (one step of ``eps`` for ``k = 1``) along that sign and projects, as FGSM^k does; for ``k > 1``
     each iterate is asked too and the one with the largest loss kept. Queries per step: ``2 n`` in one batch for
@@ -216,8 +216,6 @@ class FiniteDifferenceFGSM(QueryAttack):
     """
 
     name = "fd_fgsm"
-    H = 0.01
-    """The difference step as a share of eps."""
 
     def __init__(self, layout: ObsLayout, eps: float, victim, expert, steps: int = 1):
         super().__init__(layout, eps, victim, expert)
@@ -225,10 +223,7 @@ class FiniteDifferenceFGSM(QueryAttack):
         if steps < 1:
             raise ValueError(f"fd_fgsm steps must be >= 1, got {steps}")
         self.steps = int(steps)
-        n_pos = layout.n_position
-        self.moves = np.zeros((2 * n_pos, layout.obs_dim))  # +h on each entry, then -h on each
-        self.moves[np.arange(n_pos), np.arange(n_pos)] = self.H * self.eps
-        self.moves[n_pos + np.arange(n_pos), np.arange(n_pos)] = -self.H * self.eps
+        self.moves = difference_moves(layout.n_position, layout.obs_dim, DIFFERENCE * self.eps)
 
     def propose(self, true_obs, rngs):
         n_pos, iterated = self.layout.n_position, self.steps > 1
@@ -286,18 +281,22 @@ class LearnedAttack(QueryAttack):
         blocks, n = in_blocks(x)  # batch-invariant, like the policies
         dists = [self.net.distribution(b) for b in blocks]
         draws = self.search or int(self.stochastic)
-        candidates = np.zeros((n, draws + 1, true_obs.shape[1]))
-        candidates[:, 0, :n_pos] = torch.cat([self.net.most_likely(d) for d in dists])[:n].double().numpy()
+        picks = np.zeros((n, draws + 1, self.net.sample_width if self.net.directed else n_pos))
+        picks[:, 0] = torch.cat([self.net.most_likely(d) for d in dists])[:n].double().numpy()
         if draws:
-            candidates[:, 1:, :n_pos] = self.draws(dists, rngs, draws)
-        candidates *= self.scale
+            picks[:, 1:] = self.draws(dists, rngs, draws)
+        if self.net.directed:  # directions: the actor turns each into its perturbation, asking the victim
+            picks = pushes(self.ask, true_obs, picks, self.net.eps, n_pos)
+        candidates = np.zeros((n, draws + 1, true_obs.shape[1]))
+        candidates[:, :, :n_pos] = picks * self.scale
         if not self.search:
             return candidates[:, -1]
         best = self.losses(true_obs, candidates, label).argmax(1)
         return candidates[np.arange(n), best]
 
     def draws(self, dists, rngs, k: int) -> np.ndarray:
-        """``k`` perturbations per row from the adversary's distribution, drawn from the row's rng."""
+        """``k`` perturbations (directed: directions) per row from the adversary's distribution, drawn from the row's
+        rng."""
         if self.net.categorical:
             cumulative = torch.cat([d.probs for d in dists]).double().numpy().cumsum(-1)
             out = np.empty((len(rngs), k, self.net.n_position))
@@ -307,7 +306,8 @@ class LearnedAttack(QueryAttack):
             return out
         mean = torch.cat([d.mean for d in dists]).double().numpy()
         std = self.net.log_std.detach().exp().double().numpy()
-        return np.stack([np.clip(mean[row] + std * rng.standard_normal((k, len(std))), -self.net.eps, self.net.eps)
+        bound = np.inf if self.net.directed else self.net.eps
+        return np.stack([np.clip(mean[row] + std * rng.standard_normal((k, len(std))), -bound, bound)
                          for row, rng in enumerate(rngs)])
 
 
@@ -317,10 +317,10 @@ CLASSES: dict[str, type[Attack]] = {cls.name: cls for cls in (NoAttack, RandomAt
 
 def queries_victim(attack: str, adversary: AdversaryNet | None = None, search: int = 0) -> bool:
     """Whether ``attack`` puts questions to the victim: the zeroth-order ones always, aril_a when its
-    ``adversary`` takes the victim's actions or it searches (``search`` > 0) -- in a graph, whether the
-    attacker's probe client listens on ``action`` too."""
+    ``adversary`` takes the victim's actions or directs them, or it searches (``search`` > 0) -- in a graph,
+    whether the attacker's probe client listens on ``action`` too."""
     if attack == "aril_a":
-        return adversary.takes_actions or search > 0
+        return adversary.takes_actions or adversary.directed or search > 0
     return attack in QUERY_ATTACKS
 
 

@@ -174,3 +174,136 @@ def test_a_gaussian_state_only_adversary_asks_no_queries(swimmer_files, tmp_path
     obs = np.random.default_rng(0).normal(size=(3, 8))
     delta = attack.perturb(obs, [np.random.default_rng(i) for i in range(3)])
     assert attack.queries == 0 and np.all(np.abs(delta) <= 0.2) and len(np.unique(delta[:, :3])) == 9
+
+
+class EndingSims:
+    """Simulators whose first one ends its episode early (a termination, as a fallen Ant's) at the step given,
+    keeping the observation it ended in."""
+
+    def __init__(self, sims, end_at: int):
+        self.sims, self.end_at, self.steps, self.ended_in = sims, end_at, 0, None
+
+    def __len__(self):
+        return len(self.sims)
+
+    def __getattr__(self, name):
+        return getattr(self.sims, name)
+
+    def step(self, action, rows):
+        obs, reward, terminated, truncated = self.sims.step(action, rows)
+        self.steps += 1
+        if self.steps == self.end_at:
+            terminated = terminated.copy()
+            terminated[0], self.ended_in = True, obs[0].copy()
+        return obs, reward, terminated, truncated
+
+
+@pytest.mark.parametrize("terminal", ["bootstrap", "held"])
+def test_an_early_end_is_worth_what_terminal_says(terminal, swimmer_files, make_policy, tmp_path):
+    """terminal:=nothing gives the adversary nothing after a termination (toppling the victim ends its reward);
+    bootstrap adds the value of the state it ended in, held that state's disagreement at every later step."""
+    from aril_ros import adversary as adv
+    from aril_ros.policy import load_policy
+    from aril_ros.rollout import SimBatch
+    from aril_ros.step import disagreement
+
+    victim, expert = load_policy(swimmer_files[0]), make_policy("Swimmer-v5", seed=5)
+    rollouts = {}
+    for setting in ("nothing", terminal):
+        cfg = AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(swimmer_files[0]), n_envs=2, rollout=6,
+                              warmup=5, gamma=0.9, terminal=setting)
+        sims, resets = EndingSims(SimBatch(cfg.env, cfg.n_envs), end_at=6), adv.EnvSeeds(100)
+        net = adv.initial_adversary(cfg, *adv.input_scaling(cfg, sims, victim, expert, resets))
+        sims.steps = 0  # the warm-up's steps do not count: the collection's sixth step ends the first simulator
+        collector = adv.Collector(cfg, sims, resets, net, adv.ValuePlay(cfg, sims, net, victim), victim, expert,
+                                  torch.Generator().manual_seed(0))
+        rollouts[setting] = collector.collect(), collector, sims
+    (plain, _, _), (valued, collector, sims) = rollouts["nothing"], rollouts[terminal]
+    assert plain.done[-1, 0] == valued.done[-1, 0] == 1.0
+    assert torch.equal(plain.reward[:, 1], valued.reward[:, 1]) and torch.equal(plain.reward[:-1], valued.reward[:-1])
+    scale, ended_in = collector.return_scale.std, sims.ended_in[None]
+    if terminal == "held":  # gamma / (1 - gamma) = 9 steps' worth of the state's disagreement
+        worth = 9.0 * disagreement(victim.act(ended_in), expert.act(ended_in))[0] / scale
+    else:
+        worth = 0.9 * collector.value_of(ended_in, scale, [0])[0].item()
+    assert worth > 0 and valued.reward[-1, 0].item() == pytest.approx(plain.reward[-1, 0].item() + worth, rel=1e-5)
+    with pytest.raises(ValueError, match="terminal:=held .* needs gamma:= < 1"):
+        train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(swimmer_files[0]), gamma=1.0,
+                                        terminal="held", steps=0, out=str(tmp_path / "a.pt")))
+
+
+class RecordingSims(EndingSims):
+    """Simulators that keep the env's rewards of the last step (and end no episode early)."""
+
+    def __init__(self, sims):
+        super().__init__(sims, end_at=-1)
+        self.rewards = None
+
+    def step(self, action, rows):
+        obs, self.rewards, terminated, truncated = super().step(action, rows)
+        return obs, self.rewards, terminated, truncated
+
+
+def test_the_return_objective_rewards_the_victims_lost_reward(swimmer_files, make_policy):
+    """objective:=return: the adversary's reward is minus the victim's reward from the env (in units of the return's
+    spread), with no exact disagreement part in its value; the paper's objective is the disagreement."""
+    from aril_ros import adversary as adv
+    from aril_ros.policy import load_policy
+    from aril_ros.rollout import SimBatch
+
+    victim, expert = load_policy(swimmer_files[0]), make_policy("Swimmer-v5", seed=5)
+    cfg = AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(swimmer_files[0]), n_envs=2, rollout=6, warmup=5,
+                          objective="return")
+    sims, resets = RecordingSims(SimBatch(cfg.env, cfg.n_envs)), adv.EnvSeeds(100)
+    net = adv.initial_adversary(cfg, *adv.input_scaling(cfg, sims, victim, expert, resets))
+    collector = adv.Collector(cfg, sims, resets, net, adv.ValuePlay(cfg, sims, net, victim), victim, expert,
+                              torch.Generator().manual_seed(0))
+    rollout = collector.collect()
+    assert torch.equal(rollout.base, torch.zeros_like(rollout.base))
+    expected = -sims.rewards / collector.return_scale.std
+    assert np.abs(sims.rewards).min() > 0 and rollout.reward[-1].numpy() == pytest.approx(expected, rel=1e-5)
+
+
+def test_the_directed_actor_finds_the_corner_that_moves_the_action_along_the_direction():
+    """For a victim linear in the zero-order entries the first-order answer is exact: eps * sign(W^T d)."""
+    from aril_ros.adversary_net import pushes
+
+    rng = np.random.default_rng(0)
+    weights = rng.normal(size=(2, 3))  # action = W @ (the three zero-order entries), the rest ignored
+    asked = []
+
+    def ask(obs):
+        asked.append(len(obs))
+        return obs[:, :3] @ weights.T
+
+    obs, directions = rng.normal(size=(5, 8)), rng.normal(size=(5, 4, 2))
+    got = pushes(ask, obs, directions, 0.2, 3)
+    np.testing.assert_array_equal(got, 0.2 * np.sign(np.einsum("ap,nka->nkp", weights, directions)))
+    assert asked == [5 * 6]  # 2 questions per zero-order entry and row, in one batch
+    corners = 0.2 * np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T  # every corner of the box
+    best = np.einsum("ap,cp,nka->nkc", weights, corners, directions).max(-1)
+    np.testing.assert_allclose(np.einsum("ap,nkp,nka->nk", weights, got, directions), best)
+
+
+def test_a_directed_adversary_trains_and_attacks_through_answers_alone(swimmer_files, make_policy, tmp_path):
+    """policy:=directed: a direction in action space per step, its perturbation the actor's corner, every question
+    to the victim an act(); at evaluation 1 (its input) + 2 per zero-order entry a step, + the search's."""
+    victim, _ = swimmer_files
+    expert_file = save_policy(make_policy("Swimmer-v5", seed=5), tmp_path / "expert.pt")
+    path = train_adversary(AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert_file),
+                                           policy="directed", steps=512, n_envs=2, rollout=128, warmup=5,
+                                           out=str(tmp_path / "adv.pt")), log=lambda *a, **k: None)
+    net = load_adversary(path)
+    assert net.directed and net.meta["provenance"]["queries"] > 512 * (1 + 6)
+    black_box, labeller = answering(victim, expert_file)
+    obs = np.random.default_rng(0).normal(size=(6, 8))
+    rngs = lambda: [np.random.default_rng([1, i]) for i in range(6)]  # noqa: E731
+    for search, asked in ((0, 1 + 6), (4, 1 + 6 + 5)):
+        attack = make_attack("aril_a", layout_of("Swimmer-v5"), 0.2, black_box, labeller, adversary=str(path),
+                             search=search)
+        delta = attack.perturb(obs, rngs())
+        np.testing.assert_array_equal(delta, attack.perturb(obs, rngs()))
+        assert attack.queries_per_step == asked
+        assert set(np.unique(delta[:, :3])) <= {-0.2, 0.0, 0.2} and np.all(delta[:, 3:] == 0)
+    with pytest.raises(ValueError, match="pushes"):
+        net.delta(torch.zeros(1, 2))
