@@ -30,9 +30,10 @@ from .attacks import FGSMk
 from .evaluation import EvalConfig, evaluate_all
 from .policy import load_policy
 from .provenance import cpu, portable, stamp
-from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, SCORECARD_ATTACKS, SEARCH_ROW,
-                       TABLE_SEARCH, THREATS, adversary_path, bundled_file, calibrated_eps, row_attack, surrogate_path,
-                       check_name, user_calibration)
+from .registry import (ATTACKED_MODES, ATTACKS, DEFAULT_POLICY, DEFENSES, DIRECTED_ROW, PAPER_ENVS,
+                       SCORECARD_ATTACKS, SEARCH_ROW, TABLE_SEARCH, THREATS, adversary_path, bundled_file,
+                       calibrated_eps, directed_adversary_path, row_attack, surrogate_path, check_name,
+                       user_calibration)
 from .report.stats import summarise, worst_attack
 from .sweep import session
 from .verdict import ready_surrogate
@@ -43,12 +44,13 @@ the one attack that asks the victim nothing while it runs."""
 FD_ROW = "fd_fgsm"
 """FGSM^k by finite differences (:class:`aril_ros.attacks.FiniteDifferenceFGSM`) at FGSM^k's iterations: the
 black-box FGSM^k, two questions per perturbed entry an iteration."""
-ATTACK_ROWS = ("none", *THREATS, FD_ROW, TRANSFER_ROW, SEARCH_ROW)
+ATTACK_ROWS = ("none", *THREATS, FD_ROW, TRANSFER_ROW, SEARCH_ROW, DIRECTED_ROW)
 """The rows of the attack tables: clean, then each attack."""
 KEPT_SETTINGS = ("policy", "expert", "calibration", "episodes", "seed", "k", "search", "horizon")
 """The settings a cell kept from an earlier run (``rows:=`` naming others) must share with the run: those that
 change its figure or the table's other cells' meaning."""
-ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences"}
+ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences",
+             DIRECTED_ROW: "ARIL-A, directed"}
 
 
 def _cell(result: dict) -> dict:
@@ -223,7 +225,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     rows_of = table_rows(cfg)
     earlier = _earlier_cells(json_path, cfg, rows_of) if cfg.rows else {}
-    adversaries, surrogates, jobs, wanted = {}, {}, [], []
+    files, surrogates, jobs, wanted = {}, {}, [], []  # files: per env, the file each row's attack reads
     for env in comma_list(cfg.envs):
         if "none" not in rows_of and "none" not in earlier.get(env, {}):
             raise ValueError(f"rows:={cfg.rows}: {json_path} has no clean row of {env} run with these settings to "
@@ -234,7 +236,8 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         own = cfg.policy == DEFAULT_POLICY
         adversary = (adversary_path(env, cfg.mode) if own
                      else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        adversaries[env] = adversary
+        directed = (directed_adversary_path(env, cfg.mode) if own
+                    else Path(cfg.adversary_dir) / f"directed-adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
         surrogate = (surrogate_path(env, cfg.mode) if own
                      else Path(cfg.adversary_dir) / f"surrogate-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
         if TRANSFER_ROW in rows_of:
@@ -242,20 +245,24 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
         if {"aril_a", SEARCH_ROW} & set(rows_of):
             wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                           steps=cfg.adversary_steps, out=str(adversary)))
-        files = {"aril_a": adversary, TRANSFER_ROW: surrogates.get(env)}
+        if DIRECTED_ROW in rows_of:
+            wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
+                                          policy="directed", steps=cfg.adversary_steps, out=str(directed)))
+        files[env] = {"aril_a": adversary, SEARCH_ROW: adversary, DIRECTED_ROW: directed,
+                      TRANSFER_ROW: surrogates.get(env)}
         for row in rows_of:
             attack = row_attack(row)
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
                                           mode="clean" if attack == "none" else cfg.mode, attack=attack,
                                           eps=0.0 if attack == "none" else eps, k=_iterations(row, cfg.k),
-                                          attack_file=str(files[attack]) if attack in files else "",
+                                          attack_file=str(files[env][row]) if row in files[env] else "",
                                           search=cfg.search if row == SEARCH_ROW else 0,
                                           episodes=cfg.episodes, seed=cfg.seed, horizon=cfg.horizon)))
     with session(cfg.workers, cfg.address):  # one Ray for the trainings and the evaluations
         ready_adversaries(wanted, cfg.retrain, log, cfg.workers, cfg.address)  # every env's at once, as tasks
         results = iter(evaluate_all(jobs, cfg.workers, cfg.address, log))
     fresh = []
-    for env, adversary in adversaries.items():
+    for env in files:
         cells = dict(earlier.get(env, {}))
         for row in rows_of:
             attack = row_attack(row)
@@ -269,9 +276,9 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
             if "queries_per_step" in result:
                 cells[row]["queries_per_step"] = result["queries_per_step"]
             if attack == "aril_a":
-                cells[row]["adversary"] = load_adversary(adversary).meta["provenance"]
+                cells[row]["adversary"] = load_adversary(files[env][row]).meta["provenance"]
             if attack == TRANSFER_ROW:
-                cells[row]["surrogate"] = {"file": portable(str(surrogates[env])),
+                cells[row]["surrogate"] = {"file": portable(str(files[env][row])),
                                            **load_policy(surrogates[env], env).meta.provenance}
             log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[row]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
                 flush=True)
@@ -335,7 +342,9 @@ def attack_markdown(payload: dict) -> str:
     lines = [f"# {table} ({payload['mode']} attacks), Adversary rows — victim: {payload['victim']}", "",
              "Return, mean ± std over deterministic episodes, and the drop from clean; FGSM and FGSM^k are "
              "white-box (the victim's gradients), the others black-box: SPSA^k and ARIL-A + search query the "
-             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation, FGSM^k "
+             "victim's actions (queries per step in the last column), ARIL-A maps the state to a perturbation, "
+             "ARIL-A, directed, to a direction in the victim's action space, which finite differences of the victim's "
+             "answers turn into a perturbation (PA-AD's director and actor), FGSM^k "
              "on a surrogate attacks a copy fitted to the victim's answers (its questions and fidelity in the JSON). "
              "Each cell's episodes, seeds, adversary and command are in the JSON.", "",
              "| attack | " + " | ".join(f"{e} (eps {_table_eps(cells[e])})" for e in envs)

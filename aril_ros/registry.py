@@ -7,6 +7,7 @@ included, takes them from here. Bundled files are package data, found from the i
     aril_ros/data/<policy>/<env>.pt                     expert, bc, dagger, dart, gail
     aril_ros/data/<policy>/<env>-<mode>.pt              dr, aril (trained against one attack mode)
     aril_ros/data/adversary/<env>-<mode>.pt             ARIL-A against the bundled DAgger learner
+    aril_ros/data/directed-adversary/<env>-<mode>.pt    directed ARIL-A (policy:=directed) against it
     aril_ros/data/defense-adversary/<env>-<mode>-<defense>.pt   ARIL-A against each other defense
     aril_ros/data/eps_calibration.json                  the eps per env and mode (aril calibrate-eps)
 
@@ -41,15 +42,18 @@ ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^
 """Every attack by name, with the name tables print."""
 SEARCH_ROW = "aril_a_search"
 """A row of the tables and the scorecard: aril_a with query-time search (``search:=K`` candidates a step)."""
+DIRECTED_ROW = "aril_a_directed"
+"""A row of the attack tables: aril_a with a directed adversary (``policy:=directed``: a direction in the victim's
+action space, turned into a perturbation by finite differences of its answers)."""
 SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search"}
 """What a scorecard's rows name: the attacks, and two ways its black-box pipeline runs aril_a (an adversary of the
 zoo as it is; its own with query-time search)."""
 
 
 def row_attack(row: str) -> str:
-    """The attack a table's or a scorecard's row runs: aril_a for the zoo's row and ARIL-A + search, which differ
-    from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
-    return "aril_a" if row in ("zoo", SEARCH_ROW) else row
+    """The attack a table's or a scorecard's row runs: aril_a for the zoo's row, ARIL-A + search and directed ARIL-A,
+    which differ from the ARIL-A row only in the adversary file and the search; every other row is its attack."""
+    return "aril_a" if row in ("zoo", SEARCH_ROW, DIRECTED_ROW) else row
 
 
 SURROGATE_ATTACKS = ("transfer",)
@@ -165,6 +169,12 @@ def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Pat
     if defense == DEFAULT_POLICY:
         return DATA_DIR / "adversary" / f"{env_id}-{mode}.pt"
     return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
+
+
+def directed_adversary_path(env_id: str, mode: str) -> Path:
+    """Where the bundled directed ARIL-A (``policy:=directed``) against the bundled DAgger learner lives (whether or
+    not it exists): the attack tables' directed row. Not in the verdict's zoo (its folder is not the zoo's)."""
+    return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}.pt"
 
 
 def surrogate_path(env_id: str, mode: str) -> Path:

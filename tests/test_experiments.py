@@ -29,18 +29,22 @@ def test_calibration_and_attack_table_end_to_end(tmp_path, make_policy):
                                            episodes=2, horizon=60, adversary_steps=2000, k=3,
                                            adversary_dir=str(tmp_path), out=str(tmp_path / "attacks"), **ONE), **QUIET)
     cells = table["rows"][0]["cells"]
-    assert list(cells) == ["none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "fd_fgsm", "transfer", "aril_a_search"]
+    assert list(cells) == ["none", "random", "fgsm", "fgsm_k", "spsa", "aril_a", "fd_fgsm", "transfer", "aril_a_search",
+                           "aril_a_directed"]
     assert cells["spsa"]["queries_per_step"] == 1 + 3 * (2 * 8 + 1)  # k:=3 iterations of 8 directions
     assert cells["fd_fgsm"]["queries_per_step"] == 3 * (2 * 3 + 1) + 1  # k:=3 iterations, as FGSM^k, 3 entries
     assert cells["aril_a_search"]["queries_per_step"] == 1 + 16 + 1  # its input action, 16 draws, the likeliest
+    assert cells["aril_a_directed"]["queries_per_step"] == 1 + 2 * 3  # its input action, 2 per zero-order entry
     assert all(c["episodes"] == 2 and c["seeds"] == "2000..2001" for c in cells.values())
     assert cells["fgsm"]["eps"] == 0.5 and cells["none"]["eps"] == 0.0
     saved = json.loads((tmp_path / "attacks.json").read_text())
     assert all(c["command"].startswith("aril attack-table mode:=sensory")
                for c in saved["rows"][0]["cells"].values())
     assert cells["aril_a"]["adversary"]["steps"] >= 2000
+    assert cells["aril_a_directed"]["adversary"]["settings"]["policy"] == "directed"
+    assert (tmp_path / "directed-adversary-Swimmer-v5-sensory-victim.pt").exists()
     markdown = (tmp_path / "attacks.md").read_text()
-    assert "| ARIL-A + search |" in markdown and "| 18 |" in markdown
+    assert "| ARIL-A + search |" in markdown and "| 18 |" in markdown and "| ARIL-A, directed |" in markdown
     assert (tmp_path / "adversary-Swimmer-v5-sensory-victim.pt").exists()
     # transfer: FGSM^k on a surrogate fitted to the victim's answers at the table's eps, which asks the victim nothing
     surrogate = tmp_path / "surrogate-Swimmer-v5-sensory-victim.pt"
