@@ -219,12 +219,12 @@ def made_against(provenance: dict, victim: str, env: str, mode: str | None) -> b
 
 
 def ready_adversary(adversary: Path, victim: str, env: str, mode: str, eps: float, expert: str, steps: int,
-                    retrain: bool, log, seed: int = 0, init: str = "") -> Path:
-    """``adversary``, trained (with training seed ``seed``, from the adversary file ``init`` if given) against
-    ``victim`` first when it is missing, of another eps, trained against another policy than ``victim`` is now,
-    or ``retrain``."""
+                    retrain: bool, log, seed: int = 0, init: str = "", policy: str = "categorical") -> Path:
+    """``adversary``, trained (with training seed ``seed``, from the adversary file ``init`` if given, of adversary
+    ``policy``) against ``victim`` first when it is missing, of another eps, trained against another policy than
+    ``victim`` is now, or ``retrain``."""
     wanted = AdversaryConfig(env=env, mode=mode, eps=eps, victim=victim, expert=expert, steps=steps, seed=seed,
-                             init=init, out=str(adversary))
+                             init=init, policy=policy, out=str(adversary))
     return ready_adversaries([wanted], retrain, log)[0]
 
 

@@ -50,7 +50,7 @@ KEPT_SETTINGS = ("policy", "expert", "calibration", "episodes", "seed", "k", "se
 """The settings a cell kept from an earlier run (``rows:=`` naming others) must share with the run: those that
 change its figure or the table's other cells' meaning."""
 ROW_NAMES = {**ATTACKS, SEARCH_ROW: SCORECARD_ATTACKS[SEARCH_ROW], FD_ROW: "FGSM^k by finite differences",
-             DIRECTED_ROW: "ARIL-A, directed"}
+             DIRECTED_ROW: SCORECARD_ATTACKS[DIRECTED_ROW]}
 
 
 def _cell(result: dict) -> dict:

@@ -45,9 +45,10 @@ SEARCH_ROW = "aril_a_search"
 DIRECTED_ROW = "aril_a_directed"
 """A row of the attack tables: aril_a with a directed adversary (``policy:=directed``: a direction in the victim's
 action space, turned into a perturbation by finite differences of its answers)."""
-SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search"}
-"""What a scorecard's rows name: the attacks, and two ways its black-box pipeline runs aril_a (an adversary of the
-zoo as it is; its own with query-time search)."""
+SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search",
+                     DIRECTED_ROW: "ARIL-A, directed"}
+"""What a scorecard's and a table's rows name: the attacks, two ways the black-box pipeline runs aril_a (an adversary
+of the zoo as it is; its own with query-time search), and the tables' directed ARIL-A."""
 
 
 def row_attack(row: str) -> str:

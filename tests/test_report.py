@@ -64,7 +64,7 @@ def test_the_top_two_defenses_are_compared_seed_by_seed_and_unseparated_cells_na
             for attack in ("none", *THREATS):
                 plan.append((Key(env, "physical", defense, attack, 0.0 if attack == "none" else 1.0, seed), {}))
                 returns.append([worst if attack == "aril_a" else worst + 100.0])
-        return Evaluated({}, {}, {}, plan, returns, {}, [])
+        return Evaluated({}, {}, {}, {}, plan, returns, {}, [])
 
     seeds = (0, 1, 2)
     done = evaluated({**{("Swimmer-v5", "dr", s): 50.0 + s for s in seeds},  # DR leads ARIL by 40 on every seed
@@ -128,16 +128,18 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
         text = out.read_text()
         figures = tmp_path / "docs" / "results"
         payload = json.loads((figures / "report.json").read_text())
-        # 5 defenses x (clean + 5 attacks + 5 sweep attacks x 2 scales), and DAgger under the 2 black-box rows
-        assert len(payload["evaluations"]) == 5 * (6 + 5 * 2) + 2
+        # 5 defenses x (clean + 5 attacks + 5 sweep attacks x 2 scales), and DAgger under the 3 black-box rows
+        assert len(payload["evaluations"]) == 5 * (6 + 5 * 2) + 3
         for row in ("DAgger, clean", "FGSM (on DAgger)", "FGSM^k (on DAgger)", "ARIL-A (on DAgger)",
-                    "FGSM^k on a surrogate (on DAgger)", "ARIL-A + search (on DAgger)", "GAIL", "DR", "DART", "ARIL"):
+                    "FGSM^k on a surrogate (on DAgger)", "ARIL-A + search (on DAgger)", "ARIL-A, directed (on DAgger)",
+                    "GAIL", "DR", "DART", "ARIL"):
             assert f"| {row} |" in text
         # the black-box rows: a surrogate fitted here (the bundled one is for 1000-step episodes), and search
         jobs = {e["key"]["attack"]: e["job"] for e in payload["evaluations"]
                 if e["key"]["defense"] == "dagger" and e["key"]["scale"] == 1.0}
         assert jobs["transfer"]["attack_file"].endswith("surrogates/Swimmer-v5-physical-dagger-seed0.pt")
         assert jobs["aril_a_search"] == {**jobs["aril_a"], "search": 16}
+        assert jobs["aril_a_directed"]["attack_file"].endswith("aril_ros/data/directed-adversary/Swimmer-v5-physical.pt")
         assert "The strongest black-box attack" in text and "takes at least as much as white-box FGSM^k in" in text
         assert "## Table 2: physical attacks" in text and "Swimmer-v2 paper" in text
         assert "Ant's contact-force" not in text
@@ -154,17 +156,17 @@ def test_the_report_is_built_from_its_evaluations_and_resumes_from_the_cache(tmp
         assert "aril_ros/data/dagger/Swimmer-v5.pt" in cached_policies
         assert not any(Path(p).is_absolute() and not p.startswith(str(tmp_path)) for p in cached_policies)
         # the CPU the evaluations ran on (another model gives other returns from the same files)
-        assert payload["evaluated_on"] == {cpu(): 82} and f"; evaluated on {cpu()} (another MuJoCo" in text
+        assert payload["evaluated_on"] == {cpu(): 83} and f"; evaluated on {cpu()} (another MuJoCo" in text
         # the compute: every distinct evaluation timed, the bundled files' trainings from their provenance
         stages = payload["compute"]["stages"]
-        assert stages["evaluations"] == {**stages["evaluations"], "tasks": 82, "untimed": 0}
-        assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5
+        assert stages["evaluations"] == {**stages["evaluations"], "tasks": 83, "untimed": 0}
+        assert stages["evaluations"]["cpu_hours"] > 0 and stages["adversary trainings"]["tasks"] == 5 + 1
         hours = payload["compute"]["hours_on_cores"]
         assert hours["1"] >= hours["2"] >= hours["128"] > 0 and "- Compute: " in text
         logged.clear()
         build_report(cfg, log=lambda *a, **k: logged.append(a[0]))
-        assert any(f"82 evaluations: 82 cached on this CPU model ({cpu()}), 0 to run" in line for line in logged)
-        assert "distinct evaluations" not in text and "0 of 82 distinct evaluations run here" in out.read_text()
+        assert any(f"83 evaluations: 83 cached on this CPU model ({cpu()}), 0 to run" in line for line in logged)
+        assert "distinct evaluations" not in text and "0 of 83 distinct evaluations run here" in out.read_text()
         assert out.read_text().split("## Protocol")[1] == text.split("## Protocol")[1]  # only the stamp changes
 
 
@@ -340,7 +342,7 @@ def test_more_seeds_go_to_the_cells_the_first_seeds_cannot_separate(tmp_path, mo
 
 def test_evaluate_false_only_makes_the_files_the_evaluations_need(tmp_path, monkeypatch):
     """evaluate:=false (a machine whose CPU model the cache does not serve): the other seeds' policies, the ARIL-As
-    against them and DAgger's surrogate are made where the report would make them, nothing is evaluated and no report
+    against them and DAgger's surrogate and directed ARIL-A are made where the report would make them, nothing is evaluated and no report
     is written; more_seeds:=, which evaluations decide, is refused with it."""
     trainings_copy_the_bundled_files(monkeypatch)
     work, out = tmp_path / "work", tmp_path / "results.md"
@@ -355,6 +357,7 @@ def test_evaluate_false_only_makes_the_files_the_evaluations_need(tmp_path, monk
         f"Swimmer-v5-physical-{d}-seed1.pt" for d in defenses]
     assert len(list((work / "policies").iterdir())) == 5
     assert "Swimmer-v5-physical-dagger-seed1.pt" in [p.name for p in (work / "surrogates").iterdir()]
+    assert [p.name for p in (work / "directed-adversaries").iterdir()] == ["Swimmer-v5-physical-dagger-seed1.pt"]
     assert not (work / "cache").exists() and not out.exists() and not out.with_suffix("").exists()
-    assert any("evaluate:=false: 20 policy and adversary files" in line and "nothing evaluated" in line
+    assert any("evaluate:=false: 22 policy and adversary files" in line and "nothing evaluated" in line
                for line in logged)

@@ -171,29 +171,32 @@ class Evaluated:
     policies: dict
     adversaries: dict
     surrogates: dict
+    directed: dict
     plan: list
     returns: list
     counts: dict
     runs: list
 
 
-def files_needed(store: Artifacts, combos: list[tuple], eps: dict, horizon: int) -> tuple[dict, dict, dict]:
-    """Each combo's policy (trained when not bundled), the ARIL-A against it and DAgger's surrogate."""
+def files_needed(store: Artifacts, combos: list[tuple], eps: dict, horizon: int) -> tuple[dict, dict, dict, dict]:
+    """Each combo's policy (trained when not bundled), the ARIL-A against it, and DAgger's surrogate and directed
+    ARIL-A."""
     policies = store.policies(combos)
     adversaries = store.adversaries(policies, eps)
-    return policies, adversaries, store.surrogates(policies, eps, horizon)
+    return (policies, adversaries, store.surrogates(policies, eps, horizon),
+            store.adversaries(policies, eps, directed=True))
 
 
 def evaluated(cfg: ReportConfig, store: Artifacts, combos: list[tuple], eps: dict, sweep_attacks: list[str],
               log) -> Evaluated:
     """The files each combo needs (:func:`files_needed`), then every evaluation of the plan, from the cache or run
     (:func:`.jobs.run_jobs`)."""
-    policies, adversaries, surrogates = files_needed(store, combos, eps, cfg.horizon)
-    plan = evaluation_plan(policies, adversaries, surrogates, eps, cfg.episodes, cfg.sweep_episodes, sweep_attacks,
-                           scales_of(cfg), cfg.horizon)
+    policies, adversaries, surrogates, directed = files_needed(store, combos, eps, cfg.horizon)
+    plan = evaluation_plan(policies, adversaries, surrogates, directed, eps, cfg.episodes, cfg.sweep_episodes,
+                           sweep_attacks, scales_of(cfg), cfg.horizon)
     returns, counts, runs = run_jobs([job for _, job in plan], Path(cfg.work_dir) / "cache", cfg.workers,
                                      cfg.address, cfg.fresh, log)
-    return Evaluated(policies, adversaries, surrogates, plan, returns, counts, runs)
+    return Evaluated(policies, adversaries, surrogates, directed, plan, returns, counts, runs)
 
 
 def leads(done: Evaluated, envs: list[str], modes: list[str]) -> dict[tuple, dict | None]:
@@ -209,8 +212,8 @@ def trained_only(cfg: ReportConfig, combos: list[tuple], eps: dict, log) -> None
     what could not be made is named."""
     with session(cfg.workers, cfg.address):
         store = Artifacts(cfg.work_dir, cfg.workers, cfg.address, cfg.adversary_steps, log)
-        policies, adversaries, _ = files_needed(store, combos, eps, cfg.horizon)
-    made = [p for p in (*policies.values(), *adversaries.values()) if p]
+        policies, adversaries, _, directed = files_needed(store, combos, eps, cfg.horizon)
+    made = [p for p in (*policies.values(), *adversaries.values(), *directed.values()) if p]
     log(f"[report] evaluate:=false: {len(made)} policy and adversary files ready (seed 0's bundled, the others' in "
         f"{cfg.work_dir}/) for "
         f"{len(combos)} defense, env, mode and seed combinations; nothing evaluated, no report written"
@@ -252,7 +255,8 @@ def build_report(cfg: ReportConfig, log=print) -> Path | None:
             done.counts = {"run": first.counts["run"] + done.counts["run"],
                            "cached": done.counts["cached"] - first.counts["run"]}
     evals = by_cell(done.plan, done.returns)
-    compute = compute_summary({p for p in done.policies.values() if p}, {a for a in done.adversaries.values() if a},
+    compute = compute_summary({p for p in done.policies.values() if p},
+                              {a for a in (*done.adversaries.values(), *done.directed.values()) if a},
                               [run.get("seconds") for run in done.runs])
 
     # 4. tables, figures, the JSON and the text
@@ -270,7 +274,7 @@ def build_report(cfg: ReportConfig, log=print) -> Path | None:
                "eps": {f"{e} {m}": v for (e, m), v in eps.items()},
                "episode_seeds": f"{DEFENSE_TABLE}..{DEFENSE_TABLE + max(cfg.episodes, cfg.sweep_episodes) - 1}",
                "files": {_relative(p): digest(p) for p in {*done.policies.values(), *done.adversaries.values(),
-                                                           *done.surrogates.values()} if p},
+                                                           *done.surrogates.values(), *done.directed.values()} if p},
                "missing": {" ".join(map(str, k)): v for k, v in store.missing.items()},
                "benchmarks": benchmarks, "aril_rounds": curves,
                "overall_drop": {m: {f"{d} {a}": v for (d, a), v in o.items()} for m, o in overall.items()},

@@ -1,7 +1,7 @@
 """The files a report evaluates: per (defense, env, mode, training seed) a policy and the ARIL-A
-trained against it, and for DAgger the surrogate its transfer row attacks. Seed 0 is the bundled policy and its
-bundled adversary and surrogate; another seed is trained here by the bundled policy's own settings (its provenance)
-with ``seed`` changed."""
+trained against it, and for DAgger the surrogate its transfer row attacks and the directed ARIL-A of its directed row.
+Seed 0 is the bundled policy and its bundled adversaries and surrogate; another seed is trained here by the bundled
+policy's own settings (its provenance) with ``seed`` changed."""
 from __future__ import annotations
 
 import os
@@ -13,7 +13,7 @@ from ..adversary import ready_adversary, trained_for
 from ..args import command_line
 from ..policy import load_weights
 from ..provenance import settings_of
-from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file, surrogate_path
+from ..registry import PER_MODE_POLICIES, adversary_path, bundled_file, directed_adversary_path, surrogate_path
 from ..sweep import Kept, Produced, Shipped, run_tasks
 from ..verdict import ready_surrogate, surrogate_fits
 from .jobs import FAILURES
@@ -42,8 +42,9 @@ def train_seed(defense: str, env: str, mode: str, seed: int, out: Path, run_dir:
     return trained
 
 
-def train_seed_adversary(env: str, mode: str, policy: Path, eps: float, steps: int, out: Path) -> Path:
-    return ready_adversary(out, str(policy), env, mode, eps, "expert", steps, False, print)
+def train_seed_adversary(env: str, mode: str, policy: Path, eps: float, steps: int, out: Path,
+                         adversary_policy: str = "categorical") -> Path:
+    return ready_adversary(out, str(policy), env, mode, eps, "expert", steps, False, print, policy=adversary_policy)
 
 
 class Artifacts:
@@ -95,20 +96,24 @@ class Artifacts:
             calls.setdefault(out, (defense, env, mode, seed, Produced(out), run_dir))
         return self._prepare("policy", wanted, train_seed, calls)
 
-    def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float]) -> dict[tuple, Path | None]:
-        """The ARIL-A trained against each policy: the bundled one for seed 0 (when made for this eps)."""
+    def adversaries(self, policies: dict[tuple, Path | None], eps: dict[tuple, float], directed: bool = False
+                    ) -> dict[tuple, Path | None]:
+        """The ARIL-A trained against each policy: the bundled one for seed 0 (when made for this eps); ``directed``:
+        the directed ARIL-A (``policy:=directed``) against each DAgger policy, for DAgger's directed row."""
         wanted, calls = {}, {}
         for (defense, env, mode, seed), policy in policies.items():
-            if policy is None:
+            if policy is None or (directed and defense != "dagger"):
                 continue
-            bundled = adversary_path(env, mode, defense)
+            bundled = directed_adversary_path(env, mode) if directed else adversary_path(env, mode, defense)
             if seed == 0 and trained_for(bundled, eps[env, mode], str(policy), env, mode):
                 wanted[(defense, env, mode, seed)] = bundled
                 continue
-            out = self.work / "adversaries" / f"{env}-{mode}-{defense}-seed{seed}.pt"
+            folder = "directed-adversaries" if directed else "adversaries"
+            out = self.work / folder / f"{env}-{mode}-{defense}-seed{seed}.pt"
             wanted[(defense, env, mode, seed)] = out
-            calls[out] = (env, mode, Shipped(policy), eps[env, mode], self.adversary_steps, Produced(out))
-        return self._prepare("adversary", wanted, train_seed_adversary, calls)
+            calls[out] = (env, mode, Shipped(policy), eps[env, mode], self.adversary_steps, Produced(out),
+                          "directed" if directed else "categorical")
+        return self._prepare("directed adversary" if directed else "adversary", wanted, train_seed_adversary, calls)
 
     def surrogates(self, policies: dict[tuple, Path | None], eps: dict[tuple, float], horizon: int
                    ) -> dict[tuple, Path | None]:

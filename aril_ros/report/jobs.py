@@ -17,7 +17,7 @@ from ..evaluation import evaluation_task, shipped_job
 from ..files import write_atomically
 from ..policy import PolicyFileError
 from ..provenance import cpu, portable
-from ..registry import SEARCH_ROW, TABLE_SEARCH, THREATS, row_attack
+from ..registry import DIRECTED_ROW, SEARCH_ROW, TABLE_SEARCH, THREATS, row_attack
 from ..sweep import run_tasks
 from .paper import BLACK_BOX_ROWS
 
@@ -41,25 +41,27 @@ class Key:
     seed: int
 
 
-def evaluation_plan(policies: dict, adversaries: dict, surrogates: dict, eps: dict, episodes: int,
+def evaluation_plan(policies: dict, adversaries: dict, surrogates: dict, directed: dict, eps: dict, episodes: int,
                     sweep_episodes: int, sweep_attacks: list[str], scales: list[float], horizon: int
                     ) -> list[tuple[Key, dict]]:
     """Every evaluation of every policy, with the arguments of :class:`aril_ros.evaluation.EvalConfig`:
     clean and under each threat at the calibrated eps (the tables), DAgger under the black-box rows too, the sweep
     attacks at ``scales`` times it (the sweeps); ARIL-A only where an adversary was had, the transfer attack where a
-    surrogate was. Episodes start at the defense table's seeds."""
+    surrogate was, the directed row where a directed adversary was. Episodes start at the defense table's seeds."""
     plan = []
     for (defense, env, mode, seed), policy in policies.items():
         if policy is None:
             continue
         adversary = adversaries[(defense, env, mode, seed)]
         surrogate = surrogates.get((defense, env, mode, seed))
+        director = directed.get((defense, env, mode, seed))
         points = [("none", 0.0, episodes)] + [(t, 1.0, episodes) for t in THREATS]
         points += [(a, 1.0, episodes) for a in BLACK_BOX_ROWS if defense == "dagger"]
         points += [(a, s, sweep_episodes) for a in sweep_attacks for s in scales]
         for row, scale, n in points:
             attack = row_attack(row)
-            attack_file = {"aril_a": adversary, "transfer": surrogate}.get(attack, "")
+            attack_file = (director if row == DIRECTED_ROW
+                           else {"aril_a": adversary, "transfer": surrogate}.get(attack, ""))
             if attack_file is None:
                 continue
             job = {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,

@@ -1,5 +1,5 @@
 """The paper's figures (Tables 1 and 2, MuJoCo v2 envs), keyed like the report's rows."""
-from ..registry import PAPER_ENVS
+from ..registry import DIRECTED_ROW, PAPER_ENVS, SEARCH_ROW
 
 
 def _per_env(*figures) -> dict:
@@ -11,10 +11,11 @@ PAPER_ENV = _per_env("HalfCheetah-v2", "Ant-v2", "Swimmer-v2")
 """The env each of ours stands in for."""
 PAPER_OBS_DIM = _per_env(17, 111, 8)
 """Observation sizes of the paper's -v2 envs."""
-BLACK_BOX_ROWS = ("transfer", "aril_a_search")
+BLACK_BOX_ROWS = ("transfer", SEARCH_ROW, DIRECTED_ROW)
 """Attacks on DAgger beyond the paper's: the black-box verdict pipeline's strongest (issue 38), FGSM^k on a surrogate
-fitted to DAgger's answers and ARIL-A with query-time search. DAgger alone meets them: a defense's worst case stays
-the worst of ``registry.THREATS``, as the paper's."""
+fitted to DAgger's answers and ARIL-A with query-time search, and the directed ARIL-A (PA-AD's director and actor,
+black-box). DAgger alone meets them: a defense's worst case stays the worst of ``registry.THREATS``, as the
+paper's."""
 TABLE_ROWS = (("dagger", "none"), ("dagger", "fgsm"), ("dagger", "fgsm_k"), ("dagger", "aril_a"),
               *(("dagger", attack) for attack in BLACK_BOX_ROWS),
               ("gail", "worst"), ("dr", "worst"), ("dart", "worst"), ("aril", "worst"))

@@ -62,7 +62,8 @@ def comparison(payload: dict, cells: dict) -> list[str]:
                         f"({'—' if (p := PAPER_OVERALL[mode].get((d, a))) is None else f'{p:+.1f}%'})"
                         for d, a in TABLE_ROWS[1:] if overall.get(f"{d} {a}") is not None]
         against_white_box = (
-            f"The strongest black-box attack (ARIL-A, ARIL-A + search or FGSM^k on a surrogate) takes at least as much "
+            f"The strongest black-box attack (ARIL-A, ARIL-A + search, directed ARIL-A or FGSM^k on a surrogate) takes "
+            f"at least as much "
             f"as white-box FGSM^k in {sum(ok for ok, _ in black_box)} of {len(black_box)} envs: "
             f"{_list([text for _, text in black_box])}. " if black_box else "")
         lines += [f"**{mode.capitalize()} attacks.** ARIL-A is the strongest attack on DAgger in {_list(strongest)}; "
@@ -233,8 +234,9 @@ def report_markdown(payload: dict, tables: dict, cells: dict, overall: dict, out
         "are several, else over the episodes); in brackets the drop from clean DAgger and, for a defense, the attack "
         "that hurt it most among random, FGSM, FGSM^k (10 steps), SPSA^k (black-box, 5 steps) and an ARIL-A trained "
         "against that very defense. DAgger also meets the black-box verdict pipeline's strongest attacks, rows the "
-        f"paper has not: FGSM^k on a surrogate fitted to its answers, and its ARIL-A with query-time search "
-        f"({TABLE_SEARCH} candidates a step).",
+        f"paper has not: FGSM^k on a surrogate fitted to its answers, its ARIL-A with query-time search "
+        f"({TABLE_SEARCH} candidates a step), and a directed ARIL-A (a direction in its action space, turned into a "
+        "perturbation by finite differences of its answers: PA-AD's director and actor, black-box).",
         "- eps per env and mode: the calibrated one (`aril_ros/data/eps_calibration.json`, made by "
         "`aril calibrate-eps`).", *compute_lines(payload["compute"]), "",
     ]
