@@ -114,6 +114,7 @@ HEADLINE_ROWS = {
     "DAgger under FGSM": ("dagger fgsm", "FGSM (on DAgger)"),
     "DAgger under FGSM^k": ("dagger fgsm_k", "FGSM^k (on DAgger)"),
     "DAgger under ARIL-A": ("dagger aril_a", "ARIL-A (on DAgger)"),
+    "DAgger under directed ARIL-A": ("dagger aril_a_directed", "ARIL-A, directed (on DAgger)"),
     "GAIL, worst attack": ("gail worst", "GAIL"),
     "DR, worst attack": ("dr worst", "DR"),
     "DART, worst attack": ("dart worst", "DART"),
