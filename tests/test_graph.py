@@ -28,15 +28,19 @@ from tests.conftest import (ROOT, assert_same_steps, free_domain, policy_files, 
                                                   ("physical", "Ant-v5", "random"),
                                                   ("physical", "HalfCheetah-v5", "fgsm_k"),
                                                   ("sensory", "Swimmer-v5", "aril_a"),
+                                                  ("physical", "Swimmer-v5", "directed"),
                                                   ("sensory", "HalfCheetah-v5", "transfer")])
 def test_graph_gives_the_same_trajectory_as_the_engine(mode, env_id, attack, tmp_path):
+    """directed: aril_a with a directed adversary, whose actor asks the policy node about 2 points per entry."""
     from aril_ros.adversary import AdversaryConfig, train_adversary
 
     policy, expert = policy_files(tmp_path, env_id)
-    adversary = None
-    if attack == "aril_a":
+    adversary, directed = None, attack == "directed"
+    if attack in ("aril_a", "directed"):
+        attack = "aril_a"
         adversary = train_adversary(AdversaryConfig(env=env_id, mode=mode, eps=0.1, victim=str(policy),
-                                                    expert=str(expert), steps=0, out=str(tmp_path / "adversary.pt")),
+                                                    expert=str(expert), steps=0, out=str(tmp_path / "adversary.pt"),
+                                                    policy="directed" if directed else "categorical"),
                                     log=lambda *a, **k: None)
     if attack == "transfer":  # a surrogate is a policy file: any stands in for one fitted to the policy's answers
         adversary = save_policy(random_policy(env_id, seed=3), tmp_path / "surrogate.pt")
