@@ -8,7 +8,10 @@ zero-order entries within ``±eps`` (by default a categorical over ``{-eps, 0, +
 is the victim's disagreement with the expert on the true state, ``||a_h - pi_e(s_h)||^2``, where
 ``a_h`` is the victim's action on what the attack made it see (sensory) or on the moved state
 (physical), by the step rules of :mod:`aril_ros.step`; PPO maximises the discounted sum. It never
-needs the victim's gradients: it only queries actions, so any black-box policy can be attacked.
+needs the victim's gradients: it only queries actions, so any black-box policy can be attacked. Two settings change
+the objective, both off by default: ``objective:=return`` rewards minus the victim's env reward instead, and
+``terminal:=`` gives an episode the victim ended early (a fallen Ant) a value after its end, which by default it
+has not.
 How a sample acts on a step is a :class:`ValuePlay`'s (a perturbation) or, in mode ``clean`` with a timing budget
 (``delay:=``, ``drop:=``, ``action_delay:=``), a :class:`TimingPlay`'s (when the observation is late or dropped and
 the action applied late; ``a_h`` is then the action applied).
