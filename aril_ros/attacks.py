@@ -281,7 +281,7 @@ class LearnedAttack(QueryAttack):
         blocks, n = in_blocks(x)  # batch-invariant, like the policies
         dists = [self.net.distribution(b) for b in blocks]
         draws = self.search or int(self.stochastic)
-        picks = np.zeros((n, draws + 1, self.net.sample_width if self.net.directed else n_pos))
+        picks = np.zeros((n, draws + 1, self.net.sample_width))
         picks[:, 0] = torch.cat([self.net.most_likely(d) for d in dists])[:n].double().numpy()
         if draws:
             picks[:, 1:] = self.draws(dists, rngs, draws)

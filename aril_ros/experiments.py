@@ -225,31 +225,31 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
     json_path, md_path = _outputs(cfg.out, f"results/attacks_{cfg.mode}")
     rows_of = table_rows(cfg)
     earlier = _earlier_cells(json_path, cfg, rows_of) if cfg.rows else {}
-    files, surrogates, jobs, wanted = {}, {}, [], []  # files: per env, the file each row's attack reads
+    files, jobs, wanted = {}, [], []  # files: per env, the file each row's attack reads
     for env in comma_list(cfg.envs):
         if "none" not in rows_of and "none" not in earlier.get(env, {}):
             raise ValueError(f"rows:={cfg.rows}: {json_path} has no clean row of {env} run with these settings to "
                              "take the drops from: add none to rows:=")
         eps = calibrated_eps(env, cfg.mode, cfg.calibration or None)
-        # against the bundled learner the adversary and the surrogate are bundled too (attack:=aril_a by name); else
+        # against the bundled learner the adversaries and the surrogate are bundled too (attack:=aril_a by name); else
         # under runs/
         own = cfg.policy == DEFAULT_POLICY
-        adversary = (adversary_path(env, cfg.mode) if own
-                     else Path(cfg.adversary_dir) / f"adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        directed = (directed_adversary_path(env, cfg.mode) if own
-                    else Path(cfg.adversary_dir) / f"directed-adversary-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
-        surrogate = (surrogate_path(env, cfg.mode) if own
-                     else Path(cfg.adversary_dir) / f"surrogate-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt")
+
+        def made_for(kind: str, bundled: Path) -> Path:
+            return bundled if own else Path(cfg.adversary_dir) / f"{kind}-{env}-{cfg.mode}-{Path(cfg.policy).stem}.pt"
+
+        adversary = made_for("adversary", adversary_path(env, cfg.mode))
+        directed = made_for("directed-adversary", directed_adversary_path(env, cfg.mode))
+        surrogate = made_for("surrogate", surrogate_path(env, cfg.mode))
         if TRANSFER_ROW in rows_of:
-            surrogates[env] = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
+            surrogate = ready_surrogate(cfg.policy, env, cfg.mode, eps, surrogate, cfg.horizon, log)
         if {"aril_a", SEARCH_ROW} & set(rows_of):
             wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                           steps=cfg.adversary_steps, out=str(adversary)))
         if DIRECTED_ROW in rows_of:
             wanted.append(AdversaryConfig(env=env, mode=cfg.mode, eps=eps, victim=cfg.policy, expert=cfg.expert,
                                           policy="directed", steps=cfg.adversary_steps, out=str(directed)))
-        files[env] = {"aril_a": adversary, SEARCH_ROW: adversary, DIRECTED_ROW: directed,
-                      TRANSFER_ROW: surrogates.get(env)}
+        files[env] = {"aril_a": adversary, SEARCH_ROW: adversary, DIRECTED_ROW: directed, TRANSFER_ROW: surrogate}
         for row in rows_of:
             attack = row_attack(row)
             jobs.append(asdict(EvalConfig(env=env, policy=cfg.policy, expert=cfg.expert,
@@ -279,7 +279,7 @@ def attack_table(cfg: AttackTableConfig, log=print) -> dict:
                 cells[row]["adversary"] = load_adversary(files[env][row]).meta["provenance"]
             if attack == TRANSFER_ROW:
                 cells[row]["surrogate"] = {"file": portable(str(files[env][row])),
-                                           **load_policy(surrogates[env], env).meta.provenance}
+                                           **load_policy(files[env][row], env).meta.provenance}
             log(f"[attack-table {cfg.mode}] {env} {ROW_NAMES[row]}: {cell['mean']:.1f} ± {cell['std']:.1f}",
                 flush=True)
         fresh.append({"env": env, "cells": {row: cells[row] for row in ATTACK_ROWS if row in cells}})

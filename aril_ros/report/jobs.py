@@ -54,14 +54,14 @@ def evaluation_plan(policies: dict, adversaries: dict, surrogates: dict, directe
             continue
         adversary = adversaries[(defense, env, mode, seed)]
         surrogate = surrogates.get((defense, env, mode, seed))
-        director = directed.get((defense, env, mode, seed))
         points = [("none", 0.0, episodes)] + [(t, 1.0, episodes) for t in THREATS]
         points += [(a, 1.0, episodes) for a in BLACK_BOX_ROWS if defense == "dagger"]
         points += [(a, s, sweep_episodes) for a in sweep_attacks for s in scales]
+        files = {"aril_a": adversary, SEARCH_ROW: adversary, DIRECTED_ROW: directed.get((defense, env, mode, seed)),
+                 "transfer": surrogate}  # the file each row's attack reads
         for row, scale, n in points:
             attack = row_attack(row)
-            attack_file = (director if row == DIRECTED_ROW
-                           else {"aril_a": adversary, "transfer": surrogate}.get(attack, ""))
+            attack_file = files.get(row, "")
             if attack_file is None:
                 continue
             job = {"env": env, "policy": str(policy), "mode": "clean" if attack == "none" else mode,
