@@ -43,12 +43,12 @@ ATTACKS = {"none": "clean", "random": "random", "fgsm": "FGSM", "fgsm_k": "FGSM^
 SEARCH_ROW = "aril_a_search"
 """A row of the tables and the scorecard: aril_a with query-time search (``search:=K`` candidates a step)."""
 DIRECTED_ROW = "aril_a_directed"
-"""A row of the attack tables: aril_a with a directed adversary (``policy:=directed``: a direction in the victim's
-action space, turned into a perturbation by finite differences of its answers)."""
+"""A row of the attack tables and the scorecard: aril_a with a directed adversary (``policy:=directed``: a direction
+in the victim's action space, turned into a perturbation by finite differences of its answers)."""
 SCORECARD_ATTACKS = {**ATTACKS, "zoo": "ARIL-A from the zoo", SEARCH_ROW: "ARIL-A + search",
                      DIRECTED_ROW: "ARIL-A, directed"}
-"""What a scorecard's and a table's rows name: the attacks, two ways the black-box pipeline runs aril_a (an adversary
-of the zoo as it is; its own with query-time search), and the tables' directed ARIL-A."""
+"""What a scorecard's and a table's rows name: the attacks, and three ways the black-box pipeline runs aril_a (an
+adversary of the zoo as it is; its own with query-time search; its directed one)."""
 
 
 def row_attack(row: str) -> str:
@@ -172,10 +172,14 @@ def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Pat
     return DATA_DIR / "defense-adversary" / f"{env_id}-{mode}-{defense}.pt"
 
 
-def directed_adversary_path(env_id: str, mode: str) -> Path:
-    """Where the bundled directed ARIL-A (``policy:=directed``) against the bundled DAgger learner lives (whether or
-    not it exists): the attack tables' directed row. Not in the verdict's zoo (its folder is not the zoo's)."""
-    return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}.pt"
+def directed_adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Path:
+    """Where the bundled directed ARIL-A (``policy:=directed``) against the bundled learner ``defense`` lives (whether
+    or not it exists): the one against DAgger is the attack tables' directed row; each is part of the verdict
+    benchmark's reference for its learner. None is in the verdict's zoo (their folder is not the zoo's): the scorecard
+    trains its directed ARIL-A against the policy from fresh weights."""
+    if defense == DEFAULT_POLICY:
+        return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}.pt"
+    return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}-{defense}.pt"
 
 
 def surrogate_path(env_id: str, mode: str) -> Path:

@@ -10,8 +10,9 @@ expert disagreement ``||a - a_e||^2`` of each cell. The attacks: random noise; t
 policy for actions:
 SPSA^k, FGSM by finite differences (the sign of the loss's slope along each perturbed entry, from two questions per
 entry) and what the black-box pipeline (:mod:`aril_ros.verdict`) makes: FGSM^k on a surrogate fitted to the policy's
-answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), and ARIL-A trained
-from it against the policy's answers, alone and with query-time search; and, when the policy is a file whose
+answers (transfer), the zoo's strongest bundled ARIL-A (none trained against this very file), ARIL-A trained
+from it against the policy's answers, alone and with query-time search, and a directed ARIL-A trained against them
+(its actor asks the policy for its action's slope along each perturbed entry); and, when the policy is a file whose
 gradients can be taken, the white-box FGSM and FGSM^k. The worst of
 them is the verdict (AutoAttack's rule: no knob a user could set to a soft verdict). eps is the calibrated one for
 the env and mode unless ``eps:=`` sets it. A bundled name trained per attack mode (dr, aril) is another file in each
@@ -47,6 +48,8 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
                              policy, eps, horizon; for an external node: another node needs another out:= folder)
     adversary-<mode>.pt      the ARIL-A trained against the policy from the zoo's strongest; a rerun reuses it
                              (same policy, eps, horizon, steps)
+    directed-<mode>.pt       the directed ARIL-A trained against the policy; a rerun reuses it (same policy, eps,
+                             steps)
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
@@ -80,6 +83,7 @@ from .registry import (
     ATTACKED_MODES,
     SCORECARD_ATTACKS,
     SEARCH_ROW,
+    DIRECTED_ROW,
     DEFAULT_ENV,
     MAX_EPS,
     PER_MODE_POLICIES,
@@ -96,7 +100,7 @@ from .sweep import session
 from .timing import LEARNED_TIMING_ROW, TIMING_ROWS
 from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
-from .verdict import SEARCH, BlackBoxAttacks, pipeline, relative, run_pipelines
+from .verdict import SEARCH, BlackBoxAttacks, directed_pipeline, pipeline, relative, run_pipelines
 
 
 @dataclass(frozen=True)
@@ -145,10 +149,11 @@ class Budget:
                 else f" (in {', '.join(modes)} mode where attacks:= names it)")
 
 
-SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", "fgsm", "fgsm_k")
+SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW, "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
-PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", "aril_a_search")
-"""The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`)."""
+PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)
+"""The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`): the directed row needs only its own
+step's (:func:`~aril_ros.verdict.directed_pipeline`), the others those of the steps before it."""
 QUICK_ROWS = {"sensory": ("fd_fgsm", "aril_a_search"), "physical": ("aril_a",)}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes. Chosen on screening
 episodes (results/verdict-screening/verdict.md, 16 cells of HalfCheetah and Ant: the benchmark's fewest rows that
@@ -159,8 +164,8 @@ iteration: 16 questions a step on HalfCheetah, 26 on Ant, one probe batch) took 
 screening cell had scored it: it takes more in 5 of the 8 sensory cells (Ant BC -60.8% against -53.9%, HalfCheetah
 ARIL -8.2% against -5.3%); where transfer takes more by more than a point (Ant DAgger, -38.4% against -27.7%), ARIL-A +
 search reaches the reference (-34.4% against white-box FGSM^k's -34.9%)."""
-FULL_ROWS = {"sensory": ("random", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search"),
-             "physical": ("random", "transfer", "zoo", "aril_a", "aril_a_search")}
+FULL_ROWS = {"sensory": ("random", "fd_fgsm", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW),
+             "physical": ("random", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)}
 """The full budget's black-box rows: every one but SPSA^k, and in physical mode but FGSM by finite differences too.
 Through the graph each row is 20 runs of 1,000 steps, and the query rows are the costliest (on an external node,
 SPSA^k 283 s and fd_fgsm 537 s of a sensory verdict's 20 runs, issue 38). On screening episodes
@@ -249,7 +254,8 @@ def scorecard(cfg: ScorecardConfig, log=print) -> Path:
                  if row != LEARNED_TIMING_ROW]
         late = runner.run([timing_cell(cfg, budget, policy, row) for policy, row in timed], log,
                           "scorecard timing cells") if timed else []
-        made = pipelines_for(cfg, modes, eps, budget, out, log) if set(attacks) & set(PIPELINE_ATTACKS) else {}
+        made = pipelines_for(cfg, modes, eps, budget, out, log,
+                             {mode: rows_of(cfg, budget, attacks, mode, None) for mode in modes})
         if cfg.timing and LEARNED_TIMING_ROW in budget.timing:
             learned = timing_adversaries(cfg, budget, tested, made, out, log)
             late += runner.run([timing_cell(cfg, budget, policy, LEARNED_TIMING_ROW, file)
@@ -368,7 +374,7 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
     iterations = {"spsa": {"k": budget.spsa_iterations, "samples": budget.spsa_samples},
                   "fd_fgsm": {"k": budget.fd_iterations}}.get(attack, {})
     files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
-             SEARCH_ROW: made and made.adversary}
+             SEARCH_ROW: made and made.adversary, DIRECTED_ROW: made and made.directed}
     learned = row_attack(attack) == "aril_a"
     return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode,
                       attack=row_attack(attack), eps=eps,
@@ -392,7 +398,8 @@ def timing_adversaries(cfg: ScorecardConfig, budget: Budget, tested: list[str], 
     """The learned timing row's adversary per tested policy, trained (or kept from a rerun) black-box: against the
     file, or for an external node against the pipeline's surrogate of it (the sensory one where there are two);
     none for an external node scored without the pipeline, which says so."""
-    surrogate = (made.get("sensory") or next(iter(made.values()))).surrogate if made else None
+    surrogates = [m.surrogate for mode, m in sorted(made.items(), key=lambda item: item[0] != "sensory") if m.surrogate]
+    surrogate = surrogates[0] if surrogates else None
     victims = {policy: policy if cfg.policy != "external" else surrogate for policy in tested}
     if None in victims.values():
         log(f"[scorecard] no learned timing row: it trains against the pipeline's surrogate of an external node, and "
@@ -417,29 +424,50 @@ def runner_of(cfg: ScorecardConfig, out: Path) -> CellRunner:
     return CellRunner(via_of(cfg), workers=cfg.workers, address=cfg.address, logs=logs)
 
 
-def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Budget, out: Path, log
+def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Budget, out: Path, log, rows: dict
                   ) -> dict[str, BlackBoxAttacks]:
-    """The black-box pipeline's files for each mode (:mod:`aril_ros.verdict`), in ``out``; a rerun reuses them. The
-    modes' pipelines run side by side, their ARIL-A trainings at once on ``workers`` CPUs (an external node's
-    scorecard starts a Ray for them alone: its cells run in this process)."""
-    log(f"[scorecard] {', '.join(modes)}: the black-box pipeline: a surrogate, the zoo screened, ARIL-A trained "
-        f"{budget.adversary_steps:,} steps against the policy's answers (eps "
+    """The black-box pipeline's files for each mode whose ``rows`` need them (:mod:`aril_ros.verdict`: steps 1 to 4
+    for the transfer, zoo and ARIL-A rows, step 5 for the directed one), in ``out``; a rerun reuses them. The
+    pipelines run side by side, their trainings at once on ``workers`` CPUs (an external node's scorecard starts a Ray
+    for them alone: its cells run in this process)."""
+    first = [mode for mode in modes if set(rows[mode]) & set(PIPELINE_ATTACKS[:-1])]
+    directed = [mode for mode in modes if DIRECTED_ROW in rows[mode]]
+    if not first and not directed:
+        return {}
+    log("[scorecard] the black-box pipeline" + (f", {', '.join(first)}: a surrogate, the zoo screened, ARIL-A "
+                                                 "trained" if first else "")
+        + (f"; {', '.join(directed)}: a directed ARIL-A trained" if directed else "")
+        + f" {budget.adversary_steps:,} steps against the policy's answers (eps "
         + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
     pipelines = [pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
                           budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
-                          policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in modes]
+                          policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in first]
+    pipelines += [directed_pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
+                                    budget.adversary_steps, out, cfg.domain, log) for mode in directed]
     with session(cfg.workers, cfg.address) if cfg.policy == "external" else nullcontext():
-        return dict(zip(modes, run_pipelines(pipelines, log, cfg.workers, cfg.address)))
+        made = run_pipelines(pipelines, log, cfg.workers, cfg.address)
+    attacks = dict(zip(first, made))
+    for mode, file in zip(directed, made[len(first):]):
+        attacks[mode] = dataclasses.replace(attacks.get(mode, BlackBoxAttacks()), directed=file)
+    return attacks
 
 
 def pipeline_record(made: BlackBoxAttacks) -> dict:
     """What scorecard.json keeps of a mode's pipeline: its files, the surrogate's fidelity and questions, the zoo,
-    ARIL-A's training steps and questions."""
-    made_by, trained = load_policy(made.surrogate).meta.provenance, load_adversary(made.adversary).meta["provenance"]
-    return {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
-            "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo),
-            "zoo_screened": made.screened, "adversary": relative(made.adversary),
-            "adversary_steps": trained["steps"], "adversary_queries": trained["queries"]}
+    ARIL-A's and the directed ARIL-A's training steps and questions (of what the mode's rows needed)."""
+    record = {}
+    if made.surrogate:
+        made_by = load_policy(made.surrogate).meta.provenance
+        trained = load_adversary(made.adversary).meta["provenance"]
+        record |= {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
+                   "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo),
+                   "zoo_screened": made.screened, "adversary": relative(made.adversary),
+                   "adversary_steps": trained["steps"], "adversary_queries": trained["queries"]}
+    if made.directed:
+        trained = load_adversary(made.directed).meta["provenance"]
+        record |= {"directed": relative(made.directed), "directed_steps": trained["steps"],
+                   "directed_queries": trained["queries"]}
+    return record
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

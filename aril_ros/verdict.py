@@ -1,6 +1,6 @@
 """The black-box pipeline: the attacks a scorecard runs on a policy it may only ask for actions.
 
-For one attacked mode, in four named steps (files in the scorecard's folder, which a rerun reuses):
+For one attacked mode, in five named steps (files in the scorecard's folder, which a rerun reuses):
 
 1. **copy** the policy: a surrogate fitted to its answers (:mod:`aril_ros.surrogate`), ``surrogate-<mode>.pt``;
    FGSM^k on it is the ``transfer`` attack;
@@ -14,11 +14,18 @@ For one attacked mode, in four named steps (files in the scorecard's folder, whi
    question in one message (probe batches): the training ran at about half the engine's speed (3,994 against 7,549
    steps/s, HalfCheetah physical), where one probe a message had kept it at ~650;
 4. **search** at run time: that adversary proposes, the policy is asked on :data:`SEARCH` candidates a step and
-   the most damaging is applied (``aril_a_search``).
+   the most damaging is applied (``aril_a_search``);
+5. **direct** (:func:`directed_pipeline`, beside the others and needing none of their files): a directed ARIL-A
+   (PA-AD's director, a direction in the policy's action space, and an actor that asks the policy for its action's
+   slope along each perturbed entry, two questions an entry, and takes the corner of the box that moves the action
+   furthest along it) trained against the policy itself from fresh weights: ``directed-<mode>.pt``, the
+   ``aril_a_directed`` attack. On HalfCheetah and Ant sensory it took more than the four steps above together
+   (results/aril_a_tuning.md, issue 38).
 
-The policy is asked for actions only: in step 1 (the surrogate's questions), step 3 (the training's, which the
-adversary file counts), by the adversaries that take its action as an input (one question a step) and by the
-search; never for its weights. For an external node every question is a message to the node and back.
+The policy is asked for actions only: in step 1 (the surrogate's questions), steps 3 and 5 (the trainings', which
+the adversary files count), by the adversaries that take its action as an input (one question a step), by the
+search and by the directed actor; never for its weights. For an external node every question is a message to the
+node and back.
 """
 from __future__ import annotations
 
@@ -60,16 +67,22 @@ HalfCheetah DAgger's screening picked a member that took 17% of its return where
 ZOO_FOLDERS = (DATA_DIR / "adversary", DATA_DIR / "defense-adversary")
 
 
+DIRECTED = 1
+"""The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again."""
+
+
 @dataclass(frozen=True)
 class BlackBoxAttacks:
-    """What the pipeline made for one mode: the surrogate (transfer), the zoo's best and the trained adversary."""
+    """What the pipeline made for one mode: the surrogate (transfer), the zoo's best, the trained adversary and the
+    directed one; None for what the scored rows did not need."""
 
-    surrogate: Path
-    zoo: Path | None
-    """None where the env has no bundled adversary (a new robot): no zoo row, ARIL-A from fresh weights"""
-    adversary: Path
-    screened: list[tuple[float, str]]
+    surrogate: Path | None = None
+    zoo: Path | None = None
+    """None also where the env has no bundled adversary (a new robot): no zoo row, ARIL-A from fresh weights"""
+    adversary: Path | None = None
+    screened: list[tuple[float, str]] = ()
     """every zoo member's mean return against the surrogate, best first"""
+    directed: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -83,13 +96,14 @@ class Offline:
     call: tuple
 
 
-def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
-    """Each :func:`pipeline`'s files, the pipelines side by side: each runs until it asks for a job (an
+def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list:
+    """What each pipeline makes (a :func:`pipeline`'s :class:`BlackBoxAttacks`, a :func:`directed_pipeline`'s file),
+    the pipelines side by side: each runs until it asks for a job (an
     :class:`Offline` one, which puts no question to the policy, or an adversary's training, which asks it on its own
     connection), and the jobs all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the
     cluster at ``address``); the surrogates' questions stay one pipeline at a time. Two modes fit, screen and train on
     two CPUs in the time of one."""
-    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
+    made: list = [None] * len(pipelines)
     asked: dict[int, AdversaryConfig | Offline] = {}
 
     def advance(index: int, answer=None) -> None:
@@ -167,6 +181,23 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
                                   "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
                                  indent=1) + "\n")
     return BlackBoxAttacks(surrogate, zoo, adversary, screened)
+
+
+def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
+                      domain: str = "", log=print):
+    """Step 5 for the policy ``victim_name`` (as :func:`pipeline` takes it) in ``mode`` at ``eps``: a directed ARIL-A
+    trained ``steps`` steps against it from fresh weights, ``directed-<mode>.pt``. Its record,
+    ``directed-<mode>.json``, lets a rerun for the same policy, eps and steps make nothing. A generator like
+    :func:`pipeline` (run them together with :func:`run_pipelines`): it yields the training, returns the file."""
+    out, record = folder / f"directed-{mode}.pt", folder / f"directed-{mode}.json"
+    wanted = {"directed": DIRECTED, "victim": victim_name, "mode": mode, "eps": eps, "adversary_steps": steps}
+    if made_before(record, wanted):
+        log(f"[verdict] {mode}: reusing {out}")
+        return out
+    yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
+                          else "", expert=expert, steps=steps, policy="directed", out=str(out))
+    record.write_text(json.dumps({**wanted, "files": {out.name: digest_of(out.read_bytes())}}, indent=1) + "\n")
+    return out
 
 
 def fitting(questions: np.ndarray, answers: np.ndarray, env_id: str, made: dict, out: Path, log=print):

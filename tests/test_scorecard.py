@@ -77,19 +77,19 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_trained_against_it(small
     made = ("[surrogate]", "[sweep] adversary trainings")  # what fitting the surrogate and training ARIL-A log
     assert all(any(line.startswith(start) for line in lines) for start in made)
     again, rerun = [], shutil.copytree(out, tmp_path / "card")  # the other tests read the first run's folder
-    scorecard(dataclasses.replace(cfg, attacks="aril_a", scales="1", out=str(rerun)),
+    scorecard(dataclasses.replace(cfg, attacks="aril_a,aril_a_directed", scales="1", out=str(rerun)),
               log=lambda line, **_: again.append(line))
     assert not any(line.startswith(made) for line in again)
-    for name in ("surrogate-sensory.pt", "adversary-sensory.pt"):
+    for name in ("surrogate-sensory.pt", "adversary-sensory.pt", "directed-sensory.pt"):
         assert (rerun / name).read_bytes() == (out / name).read_bytes()
     first, second = (json.loads((folder / "scorecard.json").read_text())["modes"]["sensory"] for folder in (out, rerun))
     assert second["clean"] == first["clean"]
-    assert second["attacks"] == {"aril_a": {"1.0": first["attacks"]["aril_a"]["1.0"]}}
+    assert second["attacks"] == {row: {"1.0": first["attacks"][row]["1.0"]} for row in ("aril_a", "aril_a_directed")}
     # the cells ran as sweeps, whose progress is the scorecard's: the clean cell, the quick budget's timing row (the
-    # policy a step late), then ARIL-A at eps alone
+    # policy a step late), then both ARIL-As at eps alone
     assert [line.split(",")[0] for line in again if line.startswith("[sweep] scorecard")] == [
         "[sweep] scorecard clean cell: 1/1 done", "[sweep] scorecard timing cells: 1/1 done",
-        "[sweep] scorecard cells: 1/1 done"]
+        "[sweep] scorecard cells: 2/2 done"]
 
 
 def test_the_page_quotes_each_attacks_paired_drop_and_questions_per_step_at_eps(small_card):
@@ -133,9 +133,9 @@ def test_the_full_budget_scores_every_black_box_row_but_spsa_and_physical_fd_fgs
     file = ScorecardConfig(policy="dagger", env="HalfCheetah-v5", budget="full")
     every = list(SCORED_ATTACKS)
     assert rows_of(file, full, every, "sensory", None) == ["random", "fd_fgsm", "transfer", "zoo", "aril_a",
-                                                           "aril_a_search", "fgsm", "fgsm_k"]
+                                                           "aril_a_search", "aril_a_directed", "fgsm", "fgsm_k"]
     assert rows_of(file, full, every, "physical", None) == ["random", "transfer", "zoo", "aril_a", "aril_a_search",
-                                                            "fgsm", "fgsm_k"]
+                                                            "aril_a_directed", "fgsm", "fgsm_k"]
     named = dataclasses.replace(file, attacks="spsa,fd_fgsm")
     assert rows_of(named, full, ["spsa", "fd_fgsm"], "physical", None) == ["spsa", "fd_fgsm"]
     assert "86 queries per step (where attacks:= names it)" in full.describe()
@@ -167,6 +167,13 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert (sensory["adversary_steps"], sensory["adversary_queries"]) == (trained["steps"], trained["queries"])
     assert (f"ARIL-A: `{sensory['adversary']}`, trained {trained['steps']:,} steps against the policy, "
             f"{trained['queries']:,} questions.") in text
+    directed = load_adversary(out / "directed-sensory.pt")  # against the policy, from fresh weights
+    trained = directed.meta["provenance"]
+    assert (directed.meta["policy"], trained["victim"], trained["settings"]["init"]) == ("directed", "dagger", "")
+    assert (sensory["directed"], sensory["directed_steps"], sensory["directed_queries"]) == (
+        relative(out / "directed-sensory.pt"), trained["steps"], trained["queries"])
+    assert (f"Directed ARIL-A: `{sensory['directed']}`, trained {trained['steps']:,} steps against the policy, "
+            f"{trained['queries']:,} questions.") in text
     for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
         alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
                                     attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,
@@ -184,7 +191,8 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     ({"via": "ros"}, "unknown via 'ros'; choose one of engine, graph"),
     ({"policy": "external", "domain": "181"}, r"domain:=181 is not an allowed ROS domain id: auto, 0-101 or 215-232"),
     ({"policy": "external", "domain": "42", "attacks": "fgsm"}, "unknown attack 'fgsm'; choose one of random, spsa, fd_fgsm, "
-                                                                  "transfer, zoo, aril_a, aril_a_search$"),
+                                                                  "transfer, zoo, aril_a, aril_a_search, "
+                                                                  "aril_a_directed$"),
     ({"env": "Hopper-v5", "policy": "dagger"}, "no dagger for Hopper-v5"),
 ])
 def test_bad_arguments_are_refused_before_anything_runs(tmp_path, changes, message):

@@ -1,8 +1,10 @@
 """The black-box pipeline (aril_ros.verdict, aril_ros.surrogate): it asks the scored policy for actions alone and
 counts every question, its surrogate holds none of the policy's parameters, transfer never asks the policy, the zoo
-leaves out every adversary trained against the policy, and a rerun reuses what it made. Short Swimmer episodes."""
+leaves out every adversary trained against the policy, the directed ARIL-A is trained from fresh weights against the
+policy's answers, and a rerun reuses what it made. Short Swimmer episodes."""
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import shutil
 from types import SimpleNamespace
@@ -17,7 +19,7 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.policy import load_policy, load_weights, policy_file, resolve_policy
-from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, PAPER_ENVS, calibrated_eps
+from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, DIRECTED_ROW, PAPER_ENVS, calibrated_eps
 from aril_ros.rollout import RolloutEngine
 from aril_ros.surrogate import SurrogateConfig, fit_surrogate
 from aril_ros.verdict import SEARCH, victim_digest, zoo_members
@@ -27,6 +29,7 @@ ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
 HORIZON = 50
 STEPS = 4096
 """ARIL-A's training against the policy: one PPO update."""
+N_POSITION = layout_of(ENV).n_position
 
 
 def quiet(*args, **kwargs):
@@ -39,9 +42,10 @@ def one_pipeline(*args, **kwargs):
 
 
 def run_pipeline(folder, eps: float = EPS):
-    """The pipeline on the bundled DAgger, the policy seen through :class:`AnswersOnly` (its act alone, its
-    questions counted) by the surrogate's questions and by ARIL-A's training (which may read what the file is, its
-    provenance, and nothing more): what it made, and the black boxes it asked."""
+    """The pipeline on the bundled DAgger, its five steps (the directed one beside the others, as the scorecard runs
+    them), the policy seen through :class:`AnswersOnly` (its act alone, its questions counted) by the surrogate's
+    questions and by both trainings (which may read what the file is, its provenance, and nothing more): what it
+    made, and the black boxes it asked."""
     boxes = []
 
     def answers_only(policy):
@@ -57,8 +61,10 @@ def run_pipeline(folder, eps: float = EPS):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "Answers", answers_only)
         patch.setattr(adversary, "load_policy", trained_against)
-        made = one_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON)
-    return made, boxes
+        made, directed = verdict.run_pipelines(
+            [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON),
+             verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet)], quiet)
+    return dataclasses.replace(made, directed=directed), boxes
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +83,7 @@ def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_questio
     folder, made, boxes = pipeline
     # the policy asked for the surrogate's questions, then by ARIL-A's training, and by nothing else: the zoo is
     # screened against the surrogate
-    copy, training = boxes
+    copy, training, directing = boxes
     surrogate = load_policy(made.surrogate).meta.provenance
     assert copy.asked == surrogate["queries"] > 0
     assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
@@ -90,17 +96,24 @@ def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_questio
     assert trained["settings"]["init"] == made.screened[0][1] == str(made.zoo)
     assert made.screened == sorted(made.screened)
     assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
+    # the directed ARIL-A from fresh weights against the policy's answers: a training step asks for its action on the
+    # true state, on the two points per perturbed entry the actor's slopes need, and on the perturbed state
+    directed = load_adversary(made.directed)
+    trained = directed.meta["provenance"]
+    assert made.directed == folder / f"directed-{MODE}.pt" and directed.meta["policy"] == "directed"
+    assert trained["victim_sha256"] == sha256(policy_file("dagger", ENV)) and trained["settings"]["init"] == ""
+    assert trained["queries"] == directing.asked >= (2 + 2 * N_POSITION) * STEPS
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("attack", ["transfer", "zoo", "aril_a", "aril_a_search"])
+@pytest.mark.parametrize("attack", ["transfer", "zoo", "aril_a", "aril_a_search", DIRECTED_ROW])
 def test_each_black_box_attack_runs_against_a_policy_that_only_answers(pipeline, attack):
     """As the scorecard runs them (aril_ros.scorecard.cell): the attack's victim answers act and nothing else, and
     every row it was asked is one the attack counted; transfer asks it nothing."""
     _, made, _ = pipeline
     policy, expert = resolve_policy("dagger", ENV), resolve_policy("expert", ENV)
     victim = AnswersOnly(policy)
-    file = {"transfer": made.surrogate, "zoo": made.zoo}.get(attack, made.adversary)
+    file = {"transfer": made.surrogate, "zoo": made.zoo, DIRECTED_ROW: made.directed}.get(attack, made.adversary)
     chosen = make_attack("transfer" if attack == "transfer" else "aril_a", layout_of(ENV), EPS, victim=victim,
                          expert=expert, adversary=str(file), mode=MODE, rescale=True,
                          search=SEARCH if attack == "aril_a_search" else 0)
@@ -111,8 +124,10 @@ def test_each_black_box_attack_runs_against_a_policy_that_only_answers(pipeline,
     assert np.abs(traj.delta).max() > 0 and np.abs(traj.delta).max() <= EPS
     if attack == "transfer":
         assert victim.asked == 0
-    else:  # the adversary takes the policy's action (1 row a step), the search asks about SEARCH + 1 candidates
-        assert victim.asked == chosen.queries == steps * (1 + (SEARCH + 1 if attack == "aril_a_search" else 0))
+    else:  # the adversary takes the policy's action (1 row a step), the search asks about SEARCH + 1 candidates, the
+        # directed actor about 2 points per perturbed entry
+        more = {"aril_a_search": SEARCH + 1, DIRECTED_ROW: 2 * N_POSITION}.get(attack, 0)
+        assert victim.asked == chosen.queries == steps * (1 + more)
 
 
 @pytest.mark.slow
@@ -205,15 +220,17 @@ def test_the_zoo_leaves_out_every_adversary_trained_against_the_scored_policy(le
 def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_new_ones(pipeline, tmp_path):
     folder, first, _ = pipeline
     rerun = shutil.copytree(folder, tmp_path / "rerun")  # copy2: the files keep their times
-    files = [rerun / first.surrogate.name, rerun / first.adversary.name]
+    files = [rerun / first.surrogate.name, rerun / first.adversary.name, rerun / first.directed.name]
     before = [(p.stat().st_mtime_ns, p.read_bytes()) for p in files]
     again, boxes = run_pipeline(rerun)
     assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
     assert (again.zoo, again.screened) == (first.zoo, first.screened)
     other, boxes = run_pipeline(rerun, eps=0.2)
-    assert len(boxes) == 2 and all(box.asked > 0 for box in boxes)  # the policy asked again: a new copy, a training
-    assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2 and load_adversary(other.adversary).eps == 0.2
-    assert other.surrogate.read_bytes() != before[0][1] and other.adversary.read_bytes() != before[1][1]
+    assert len(boxes) == 3 and all(box.asked > 0 for box in boxes)  # the policy asked again: a copy, two trainings
+    assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
+    assert load_adversary(other.adversary).eps == load_adversary(other.directed).eps == 0.2
+    assert all(path.read_bytes() != old for path, (_, old) in zip((other.surrogate, other.adversary, other.directed),
+                                                                   before))
 
 
 @pytest.mark.slow
@@ -297,7 +314,9 @@ def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episo
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
     figures = {"env": "HalfCheetah-v5", "policy": policy, "mode": mode, "budget": budget, "minutes": 1.0,
                "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
-               "reference": {"attack": "fgsm_k", "drop_pct": reference}, "cpu": cpu,
+               "reference": {"attack": "fgsm_k", "drop_pct": reference,
+                             "drops": {name: {"drop_pct": reference / 2 if name != "fgsm_k" else reference}
+                                       for name in ("fgsm_k", "bundled_aril_a", "bundled_directed")}}, "cpu": cpu,
                **({"pipeline": pipeline} if pipeline else {})}
     return figures if episodes is None else {**figures, "episodes": episodes}
 
@@ -473,3 +492,58 @@ def test_benchmark_adds_a_row_a_cell_was_scored_without_on_its_own_episodes(tmp_
         (folder / "cell.json").write_text(json.dumps({**old, **changed}))
         with pytest.raises(ValueError, match=message):
             verdict.add_missing_rows(cfg, *cell)
+
+
+def test_benchmark_adds_a_reference_candidate_bundled_since_and_judges_the_cell_against_the_strongest(tmp_path,
+                                                                                                       monkeypatch):
+    """A cell scored before the directed ARIL-A against its learner was bundled gets it in its reference: run on the
+    cell's own episodes, paired with its clean episodes scored again (no scorecard: every row is there), and the
+    reference becomes the strongest candidate, which the ratio is then taken to."""
+    import json
+    from aril_ros.benchmarks import verdict as bench
+    from aril_ros.provenance import cpu
+    from aril_ros.registry import directed_adversary_path
+
+    episodes = 4
+    runs = []
+
+    def evaluated(cfg):  # clean 5000 per episode; the directed ARIL-A takes 60%
+        runs.append((cfg.mode, cfg.attack, cfg.attack_file, cfg.episodes, cfg.seed))
+        per = 5000.0 if cfg.mode == "clean" else 2000.0
+        return {"mean_return": per + (episodes - 1) / 2, "episodes": [{"return": per + i} for i in range(episodes)]}
+
+    monkeypatch.setattr(bench, "episode_cell", evaluated)
+    monkeypatch.setattr(bench, "scorecard_result", lambda *a, **k: pytest.fail("no row is missing: no scorecard"))
+    cfg, cell = bench.VerdictBenchConfig(out=str(tmp_path), episodes=episodes), ("HalfCheetah-v5", "dagger",
+                                                                                 "sensory", "quick")
+    folder = bench.cell_folder(cfg, *cell)
+    folder.mkdir(parents=True)
+    old = bench_cell({"aril_a_search": -30.0}, mode="sensory", episodes=episodes, cpu=cpu(), reference=-40.0)
+    del old["reference"]["drops"]["bundled_directed"]
+    old["clean"] = 5001.5
+    (folder / "cell.json").write_text(json.dumps(old))
+    bench.add_missing_rows(cfg, *cell)
+    directed = directed_adversary_path("HalfCheetah-v5", "sensory")
+    assert runs == [("clean", "none", "", episodes, cfg.seed),
+                    ("sensory", "aril_a", str(directed), episodes, cfg.seed)]
+    judged = bench.score_cell(cfg, *cell)
+    ref = judged["reference"]
+    assert ref["attack"] == "bundled_directed" and ref["added"] == ["bundled_directed"]
+    assert ref["drop_pct"] == pytest.approx(-3000.0 / 5001.5 * 100) and ref["drops"]["fgsm_k"]["drop_pct"] == -40.0
+    assert ref["files"]["bundled_directed"].endswith("directed-adversary/HalfCheetah-v5-sensory.pt")
+    assert judged["ratio"] == pytest.approx(-30.0 / ref["drop_pct"])
+    bench.add_missing_rows(cfg, *cell)
+    assert len(runs) == 2  # kept: not run again
+
+
+def test_benchmark_judges_a_cell_without_a_row_it_could_not_score_and_says_so():
+    """A cell scored before a budget row and a reference candidate existed, not given them (add_rows:=false, or on a
+    CPU model that cannot add them here), is judged by what it has, and the table names what it lacks."""
+    from aril_ros.benchmarks.verdict import judged, table
+    cell = bench_cell({"aril_a": -70.0}, budget="full")
+    del cell["drops"][DIRECTED_ROW], cell["reference"]["drops"]["bundled_directed"]
+    got = judged(cell)
+    assert DIRECTED_ROW not in got["budget_rows"] and got["rows_lacking"] == [DIRECTED_ROW]
+    assert got["black_box_worst"] == "aril_a"
+    page = table([{"full": got}], ["full"])
+    assert f"(aril_a; without {DIRECTED_ROW})" in page and "-50.0% (fgsm_k; without bundled_directed) |" in page

@@ -4,14 +4,15 @@
 
 For each env, bundled learner and attacked mode (a cell), ``aril scorecard`` scores the learner's file as a black
 box at each budget (every black-box row: random, SPSA^k, FGSM by finite differences, transfer, zoo, ARIL-A, ARIL-A +
-search; the zoo leaves out every adversary trained against this very file), on the scorecard's episodes at eps
+search, directed ARIL-A; the zoo leaves out every adversary trained against this very file), on the scorecard's
+episodes at eps
 (scale 1; a cell whose verdict's interval comes out as wide as its drop, as Ant's can, is scored again on about as
 many episodes as narrow it, the count the scorecard's page names to a user, reusing what the first scoring trained);
 the budget's verdict is the worst of the rows the budget scores by default (the quick budget's few; the
 full budget's every one but SPSA^k, and physical fd_fgsm), the worst of every row is kept beside it. The reference
-is the stronger of white-box FGSM^k on the file and the bundled ARIL-A trained against that very learner (1M steps;
-2M for HalfCheetah DAgger), on the same episodes. Per cell it prints the black-box worst drop per budget, the
-reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
+is the strongest of white-box FGSM^k on the file, the bundled ARIL-A trained against that very learner (1M steps;
+2M for HalfCheetah DAgger) and the bundled directed ARIL-A trained against it (1M steps), on the same episodes.
+Per cell it prints the black-box worst drop per budget, the reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
 and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
 resumes from the cells already scored (a cell's figures are in its ``cell.json``, with the CPU they were scored on,
 its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
@@ -33,12 +34,12 @@ from .. import seeds
 from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
-from ..registry import ATTACKED_MODES, adversary_path
+from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, directed_adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
-from ..scorecard import BUDGETS, PIPELINE_ATTACKS, ScorecardConfig, scorecard
+from ..scorecard import BUDGETS, PIPELINE_ATTACKS, ScorecardConfig, policy_in, scorecard
 from ..verdict import PIPELINE
 
-BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search")
+BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", DIRECTED_ROW)
 WITHIN = 0.95
 """A budget's rows must find this share of the drop every row finds in each cell, or of the reference's where every
 row finds more (:func:`fewest_rows`)."""
@@ -67,6 +68,9 @@ class VerdictBenchConfig:
                     low=0, high=2**31 - 1)
     widen: bool = arg(True, "where a cell's verdict has an interval as wide as its drop, score it again on about as "
                             f"many episodes as narrow it (at most {WIDEN_AT_MOST} times as many)")
+    add_rows: bool = arg(True, "score the rows and reference candidates a cell scored before they existed lacks, on its "
+                               "own episodes (on the CPU model it was scored on); false: judge it by what it has, the "
+                               "table naming the rows it lacks")
     workers: int = arg(2, "CPUs of the local Ray each scorecard's cells run on", low=1, high=1024)
     out: str = arg("runs/verdict", "the folder of the cells and the table")
 
@@ -77,17 +81,41 @@ def episodes_of(cfg: VerdictBenchConfig, env: str) -> int:
 
 
 def reference(env: str, policy: str, mode: str, episodes: int, seed: int, result: dict) -> dict:
-    """The reference of a cell: the stronger of white-box FGSM^k (from the scorecard's ``mode`` results) and the
-    bundled ARIL-A trained against this learner, each with its paired drop from the scorecard's clean cell."""
-    adversary = adversary_path(env, mode, policy)
-    learned = evaluate(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
-                                  episodes=episodes, seed=seed))
-    learned_cell = {"episodes": [{"return": r} for r in learned["returns"]]}
-    drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]),
-             "bundled_aril_a": paired_drop(result["clean"], learned_cell)}
+    """The reference of a cell: the strongest of white-box FGSM^k (from the scorecard's ``mode`` results) and the
+    bundled adversaries trained against this learner (:func:`bundled_references`), each with its paired drop from the
+    scorecard's clean cell."""
+    drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"])}
+    files = {}
+    for name, adversary in bundled_references(env, policy, mode).items():
+        drops[name] = paired_drop(result["clean"], bundled_cell(env, policy, mode, episodes, seed, adversary))
+        files[name] = portable(str(adversary))
+    return strongest_reference(drops, files)
+
+
+def bundled_references(env: str, policy: str, mode: str) -> dict[str, Path]:
+    """The bundled adversaries trained against the bundled learner ``policy`` that a cell's reference runs, by name:
+    its ARIL-A, and its directed ARIL-A where one is bundled."""
+    files = {"bundled_aril_a": adversary_path(env, mode, policy),
+             "bundled_directed": directed_adversary_path(env, mode, policy)}
+    return {name: path for name, path in files.items() if path.exists()}
+
+
+def bundled_cell(env: str, policy: str, mode: str, episodes: int, seed: int, adversary: Path) -> dict:
+    """The returns of ``policy`` in ``mode`` under the bundled ``adversary`` on the cell's episodes."""
+    return episode_cell(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
+                                   episodes=episodes, seed=seed))
+
+
+def episode_cell(cfg: EvalConfig) -> dict:
+    """``cfg``'s evaluation as a scorecard's cell holds it: the mean return and each episode's."""
+    evaluated = evaluate(cfg)
+    return {"mean_return": evaluated["mean_return"], "episodes": [{"return": r} for r in evaluated["returns"]]}
+
+
+def strongest_reference(drops: dict, files: dict) -> dict:
+    """A reference from its candidates' paired ``drops`` and the adversary ``files`` they ran: the strongest."""
     strongest = min(drops, key=lambda name: drops[name]["drop_pct"])  # a drop is negative: the lowest is strongest
-    return {"attack": strongest, "file": portable(str(adversary)), "drops": drops,
-            "drop_pct": drops[strongest]["drop_pct"]}
+    return {"attack": strongest, "files": files, "drops": drops, "drop_pct": drops[strongest]["drop_pct"]}
 
 
 def cell_folder(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> Path:
@@ -136,26 +164,44 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
 
 def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> None:
     """A cell scored before a black-box row existed holds no figure for it, so neither its verdict nor
-    :func:`fewest_rows` can count the row: the missing rows that need no pipeline file (``fd_fgsm`` came after the
-    first cells) are scored on the cell's own episodes and added to its ``cell.json``, with the minutes they took.
-    Only on the CPU model the cell was scored on, whose clean episodes they must give again (its other rows are
-    paired with those)."""
+    :func:`fewest_rows` can count the row: the missing rows that need no file of the pipeline's first four steps
+    (``fd_fgsm`` came after the first cells, the directed ARIL-A after pipeline 4) are scored on the cell's own
+    episodes and added to its ``cell.json``, with the minutes they took; so are the reference's missing candidates (a
+    directed ARIL-A bundled since). Only on the CPU model the cell was scored on, whose clean episodes they must give
+    again (its other rows are paired with those)."""
     done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
     figures = json.loads(done.read_text())
-    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"] and row not in PIPELINE_ATTACKS]
-    if not missing:
+    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"]
+               and (row not in PIPELINE_ATTACKS or row == DIRECTED_ROW)]
+    references = {name: path for name, path in bundled_references(env, policy, mode).items()
+                  if name not in figures["reference"]["drops"]}
+    if not missing and not references:
         return
     if figures.get("cpu", cpu()) != cpu():  # a cell that did not record it: its clean episodes tell (below)
         raise ValueError(f"{done} lacks the rows {', '.join(missing)}, and was scored on {figures['cpu']}: score them "
                          f"on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
-    result, minutes = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing,
-                                       done.parent / "added")
+    if missing:
+        result, minutes = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing,
+                                           done.parent / "added")
+    else:  # only the reference lacks a candidate: the clean episodes alone, which pair its returns
+        result, minutes = {"clean": episode_cell(EvalConfig(env=env, policy=policy_in(policy, env, mode),
+                                                            mode="clean", attack="none", episodes=figures["episodes"],
+                                                            seed=cfg.seed))}, 0.0
     if abs(result["clean"]["mean_return"] - figures["clean"]) > 1e-3:
         raise ValueError(f"{done}: its clean episodes came out at {result['clean']['mean_return']:.3f} here, not "
-                         f"{figures['clean']:.3f}: the rows {', '.join(missing)} would not pair with its others")
+                         f"{figures['clean']:.3f}: the rows {', '.join(missing or references)} would not pair with "
+                         "its others")
     figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
     figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
     figures["minutes"] = round(figures["minutes"] + minutes, 2)
+    if references:
+        ref = figures["reference"]
+        drops = ref["drops"] | {name: paired_drop(result["clean"], bundled_cell(env, policy, mode, figures["episodes"],
+                                                                                 cfg.seed, path))
+                                for name, path in references.items()}
+        files = ref.get("files", {"bundled_aril_a": ref.get("file")}) | {
+            name: portable(str(path)) for name, path in references.items()}
+        figures["reference"] = strongest_reference(drops, files) | {"added": sorted(references)}
     done.write_text(json.dumps(figures, indent=1) + "\n")
 
 
@@ -200,10 +246,13 @@ def judged(figures: dict) -> dict:
     gives the verdict of today's rows, and its ratio to the reference scored with it; and the worst of every row
     beside it."""
     drops, budget = figures["drops"], BUDGETS[figures["budget"]]
-    rows = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
+    wanted = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
+    # a cell scored before a row existed, on a CPU model that cannot add it here, is judged without it (and says so)
+    rows = [row for row in wanted if row in drops]
     worst = min(rows, key=lambda row: drops[row]["drop_pct"])
     worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
-    return {**figures, "budget_rows": list(rows), "black_box_worst": worst,
+    return {**figures, "budget_rows": rows, "rows_lacking": [row for row in wanted if row not in drops],
+            "black_box_worst": worst,
             "black_box_drop_pct": drops[worst]["drop_pct"], "black_box_ci95_pct": drops[worst]["ci95_pct"],
             "ratio": drops[worst]["drop_pct"] / figures["reference"]["drop_pct"],
             "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
@@ -245,11 +294,11 @@ def table(rows: list[dict], budgets: list[str]) -> str:
         first = next(iter(cell.values()))
         ref = first["reference"]
         parts = [f"{c['black_box_drop_pct']:+.1f}% [{c['black_box_ci95_pct'][0]:+.1f}, {c['black_box_ci95_pct'][1]:+.1f}] "
-                 f"({c['black_box_worst']}{episodes_note(c)}{pipeline_note(c)}) | "
+                 f"({c['black_box_worst']}{episodes_note(c)}{pipeline_note(c)}{lacking_note(c)}) | "
                  f"{ratio(c, first)} | {c['minutes']:.1f}" if c else "– | – | –"
                  for c in (cell.get(b) for b in budgets)]
         lines.append(f"| {first['env']} | {first['policy']} | {first['mode']} | {first['clean']:.0f} | "
-                     + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}) |")
+                     + " | ".join(parts) + f" | {ref['drop_pct']:+.1f}% ({ref['attack']}{reference_note(first)}) |")
     return "\n".join(lines) + "\n"
 
 
@@ -260,6 +309,18 @@ def episodes_note(cell: dict) -> str:
         return ""
     still = episodes_to_pin(verdict_drop(cell), cell["episodes"]) is not None
     return f"; {cell['episodes']} episodes" + ("; the interval still as wide as the drop" if still else "")
+
+
+def reference_note(cell: dict) -> str:
+    """For a cell whose reference lacks a candidate bundled since it was scored, which."""
+    lacking = [name for name in bundled_references(cell["env"], cell["policy"], cell["mode"])
+               if name not in cell["reference"].get("drops", {})]
+    return f"; without {', '.join(lacking)}" if lacking else ""
+
+
+def lacking_note(cell: dict) -> str:
+    """For a cell judged without some of its budget's rows (scored before they existed), which."""
+    return f"; without {', '.join(cell['rows_lacking'])}" if cell.get("rows_lacking") else ""
 
 
 def pipeline_note(cell: dict) -> str:
@@ -292,7 +353,7 @@ def main(argv=None) -> None:
             for mode in comma_list(cfg.modes)]
     # first every cell scored before a row existed gets it: the table after each cell judges them all by today's rows
     for (env, policy, mode), budget in itertools.product(grid, budgets):
-        if (cell_folder(cfg, env, policy, mode, budget) / "cell.json").exists():
+        if cfg.add_rows and (cell_folder(cfg, env, policy, mode, budget) / "cell.json").exists():
             add_missing_rows(cfg, env, policy, mode, budget)
     for env, policy, mode in grid:
         cell = {budget: score_cell(cfg, env, policy, mode, budget) for budget in budgets}

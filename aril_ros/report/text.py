@@ -305,14 +305,21 @@ HOW_ATTACKS_ASK = (
     "action on the true state and on the perturbed one; the count below); asks as the zoo's;",
     "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
     "ARIL-A's own question, the most damaging applied;",
+    "- ARIL-A, directed: trained against the policy's answers from fresh weights (the count below); it picks a "
+    "direction for the policy's action, asks the policy about two points per perturbed entry each step (its action's "
+    "slope along each) besides its own question, and takes the corner of the box that moves the action furthest "
+    "along that direction;",
     "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
 
 
 def pipeline_lines(mode_result: dict) -> list[str]:
-    """The page's line on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice,
-    ARIL-A's training."""
+    """The page's lines on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice,
+    ARIL-A's training, the directed ARIL-A's (of what the mode's rows needed)."""
+    directed = ([f"Directed ARIL-A: `{mode_result['directed']}`, trained {mode_result['directed_steps']:,} steps "
+                 f"against the policy, {mode_result['directed_queries']:,} questions.", ""]
+                if "directed" in mode_result else [])
     if "surrogate" not in mode_result:
-        return []
+        return directed
     fidelity = mode_result["surrogate_fidelity"]
     return [f"Surrogate `{mode_result['surrogate']}`: {mode_result['surrogate_queries']:,} questions to the policy, "
             f"held-out error {fidelity['mse']:.4f} (R^2 {fidelity['r2']:.4f}, inside the ±eps box "
@@ -320,7 +327,7 @@ def pipeline_lines(mode_result: dict) -> list[str]:
             + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
                "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
             + f"ARIL-A: `{mode_result['adversary']}`, trained {mode_result['adversary_steps']:,} steps against the "
-            f"policy, {mode_result['adversary_queries']:,} questions.", ""]
+            f"policy, {mode_result['adversary_queries']:,} questions.", "", *directed]
 
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
