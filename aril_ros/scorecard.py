@@ -443,12 +443,16 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
                           budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
                           policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in first]
     pipelines += [directed_pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
-                                    budget.adversary_steps, out, cfg.domain, log) for mode in directed]
+                                    budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
+                                    policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "")
+                  for mode in directed]
     with session(cfg.workers, cfg.address) if cfg.policy == "external" else nullcontext():
         made = run_pipelines(pipelines, log, cfg.workers, cfg.address)
     attacks = dict(zip(first, made))
-    for mode, file in zip(directed, made[len(first):]):
-        attacks[mode] = dataclasses.replace(attacks.get(mode, BlackBoxAttacks()), directed=file)
+    for mode, steered in zip(directed, made[len(first):]):
+        attacks[mode] = dataclasses.replace(attacks.get(mode, BlackBoxAttacks()), **{
+            field: getattr(steered, field) for field in ("directed", "directed_zoo", "directed_screened",
+                                                         "directed_queries")})
     return attacks
 
 
@@ -466,7 +470,10 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
     if made.directed:
         trained = load_adversary(made.directed).meta["provenance"]
         record |= {"directed": relative(made.directed), "directed_steps": trained["steps"],
-                   "directed_queries": trained["queries"]}
+                   "directed_queries": trained["queries"],
+                   "directed_zoo": made.directed_zoo and relative(made.directed_zoo),
+                   "directed_zoo_screened": made.directed_screened,
+                   "directed_zoo_queries": made.directed_queries}
     return record
 
 

@@ -18,9 +18,9 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
 5. **direct** (:func:`directed_pipeline`, beside the others and needing none of their files): a directed ARIL-A
    (PA-AD's director, a direction in the policy's action space, and an actor that asks the policy for its action's
    slope along each perturbed entry, two questions an entry, and takes the corner of the box that moves the action
-   furthest along it) trained against the policy itself from fresh weights: ``directed-<mode>.pt``, the
-   ``aril_a_directed`` attack. On HalfCheetah and Ant sensory it took more than the four steps above together
-   (results/aril_a_tuning.md, issue 38).
+   furthest along it) trained against the policy itself, from the bundled directed ARIL-A that took the most return
+   from the policy on screening episodes (none trained against this very policy): ``directed-<mode>.pt``, the
+   ``aril_a_directed`` attack.
 
 The policy is asked for actions only: in step 1 (the surrogate's questions), steps 3 and 5 (the trainings', which
 the adversary files count), by the adversaries that take its action as an input (one question a step), by the
@@ -65,6 +65,11 @@ SCREEN_EPISODES = 10
 HalfCheetah DAgger's screening picked a member that took 17% of its return where the one 10 pick took 39%
 (results/aril_a_tuning.md)."""
 ZOO_FOLDERS = (DATA_DIR / "adversary", DATA_DIR / "defense-adversary")
+DIRECTED_ZOO = (DATA_DIR / "directed-adversary",)
+"""The directed step's warm starts: the bundled directed ARIL-As, one against each of DAgger, BC, DR and ARIL. Screened
+against the policy itself (a director's direction is in the policy's action space, which a copy's errors would
+bend): on HalfCheetah DR and ARIL sensory, DAgger's directed ARIL-A trained 500k steps more against the learner took
+-34.4% and -11.3% where 500k from fresh weights took -30.9% and -7.3% (results/aril_a_tuning.md, issue 38)."""
 
 
 DIRECTED = 1
@@ -83,6 +88,12 @@ class BlackBoxAttacks:
     screened: list[tuple[float, str]] = ()
     """every zoo member's mean return against the surrogate, best first"""
     directed: Path | None = None
+    directed_zoo: Path | None = None
+    """the bundled directed ARIL-A the directed one was trained from (None: fresh weights)"""
+    directed_screened: list[tuple[float, str]] = ()
+    """every directed zoo member's mean return against the policy, best first"""
+    directed_queries: int = 0
+    """the questions the directed zoo's screening put to the policy"""
 
 
 @dataclass(frozen=True)
@@ -184,20 +195,53 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
 
 
 def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-                      domain: str = "", log=print):
-    """Step 5 for the policy ``victim_name`` (as :func:`pipeline` takes it) in ``mode`` at ``eps``: a directed ARIL-A
-    trained ``steps`` steps against it from fresh weights, ``directed-<mode>.pt``. Its record,
-    ``directed-<mode>.json``, lets a rerun for the same policy, eps and steps make nothing. A generator like
-    :func:`pipeline` (run them together with :func:`run_pipelines`): it yields the training, returns the file."""
+                      domain: str = "", log=print, horizon: int = HORIZON, leave_out: str = ""):
+    """Step 5 for the policy ``victim_name`` (as :func:`pipeline` takes it, ``leave_out`` too) in ``mode`` at
+    ``eps``: the bundled directed ARIL-As screened against the policy itself on :data:`SCREEN_EPISODES` screening
+    episodes of ``horizon`` steps (but any trained against it), and a directed ARIL-A trained ``steps`` steps against
+    it from the one that took the most return, ``directed-<mode>.pt``. Its record, ``directed-<mode>.json``, lets a
+    rerun for the same policy, eps, horizon and steps make nothing. A generator like :func:`pipeline` (run them
+    together with :func:`run_pipelines`): it yields the training, returns a :class:`BlackBoxAttacks` of the directed
+    fields alone."""
     out, record = folder / f"directed-{mode}.pt", folder / f"directed-{mode}.json"
-    wanted = {"directed": DIRECTED, "victim": victim_name, "mode": mode, "eps": eps, "adversary_steps": steps}
-    if made_before(record, wanted):
+    wanted = {"directed": DIRECTED, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
+              "adversary_steps": steps, "leave_out": leave_out}
+    made = made_before(record, wanted)
+    if made:
         log(f"[verdict] {mode}: reusing {out}")
-        return out
+        return BlackBoxAttacks(directed=out, directed_zoo=made["zoo"] and Path(made["zoo"]),
+                               directed_screened=[tuple(s) for s in made["zoo_screened"]],
+                               directed_queries=made["queries"])
+    members = zoo_members(env_id, mode, victim_digest(leave_out or victim_name, env_id, mode), DIRECTED_ZOO)
+    returns, queries = [], 0
+    if members:
+        with answering(victim_name, env_id, mode, domain) as victim:
+            returns = screen_members(members, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
+                                     horizon)
+            queries = victim.asked
+    screened = sorted(zip(returns, map(relative, members)))
+    zoo = Path(screened[0][1]) if screened else None
+    start = zoo if zoo and load_adversary(zoo).eps == eps else None
+    log(f"[verdict] {mode}: " + (f"the strongest directed ARIL-A against the policy is {relative(zoo)} "
+                                 f"({len(screened)} screened, mean return {screened[0][0]:.1f}, {queries:,} questions)"
+                                 if zoo else f"no bundled directed ARIL-A of {env_id} {mode}: from fresh weights"))
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
-                          else "", expert=expert, steps=steps, policy="directed", out=str(out))
-    record.write_text(json.dumps({**wanted, "files": {out.name: digest_of(out.read_bytes())}}, indent=1) + "\n")
-    return out
+                          else "", expert=expert, steps=steps, policy="directed", init=str(start) if start else "",
+                          out=str(out))
+    record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "queries": queries,
+                                  "files": {out.name: digest_of(out.read_bytes())}}, indent=1) + "\n")
+    return BlackBoxAttacks(directed=out, directed_zoo=zoo, directed_screened=screened, directed_queries=queries)
+
+
+@dataclass(frozen=True)
+class Stepped:
+    """A black box as the engine steps it: its answers alone. The engine checks a policy's env before it runs; a
+    black box says nothing of its env but its answers, which the engine's steps take as they come."""
+
+    act: Callable
+
+    def check_env(self, env_id: str, obs_dim: int, act_dim: int) -> None:
+        pass
 
 
 def fitting(questions: np.ndarray, answers: np.ndarray, env_id: str, made: dict, out: Path, log=print):
@@ -244,11 +288,12 @@ def victim_digest(victim_name: str, env_id: str, mode: str) -> str | None:
     return digest_of(policy_file(victim_name, env_id, mode).read_bytes())
 
 
-def zoo_members(env_id: str, mode: str, exclude_sha256: str | None) -> list[Path]:
-    """The bundled adversaries of ``env_id`` and ``mode`` but any trained against the policy file of digest
-    ``exclude_sha256`` (leave-one-out)."""
+def zoo_members(env_id: str, mode: str, exclude_sha256: str | None, folders: tuple[Path, ...] = ZOO_FOLDERS
+                ) -> list[Path]:
+    """The bundled adversaries in ``folders`` (the zoo's, or the directed step's) of ``env_id`` and ``mode`` but any
+    trained against the policy file of digest ``exclude_sha256`` (leave-one-out)."""
     members = []
-    for folder in ZOO_FOLDERS:
+    for folder in folders:
         for path in sorted(folder.glob(f"{env_id}-{mode}*.pt")):
             if exclude_sha256 is None or trained_against(path, env_id, mode) != exclude_sha256:
                 members.append(path)
@@ -276,7 +321,14 @@ def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps
                horizon: int = HORIZON) -> list[float]:
     """Step 2: each member's mean return against the surrogate (scaled to ``eps``) over episodes of ``horizon``
     steps, labelled by the policy ``expert`` (a file or bundled name), in the members' order."""
-    policy, expert_policy = load_policy(surrogate, env_id), resolve_policy(expert, env_id)
+    return screen_members(members, load_policy(surrogate, env_id), env_id, mode, eps, resolve_policy(expert, env_id),
+                          horizon)
+
+
+def screen_members(members: list[Path], policy, env_id: str, mode: str, eps: float, expert_policy,
+                   horizon: int = HORIZON) -> list[float]:
+    """Each adversary's mean return against ``policy`` (a surrogate, or the policy's answers) on
+    :data:`SCREEN_EPISODES` screening episodes, scaled to ``eps``, in the members' order."""
     scores = []
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,

@@ -172,8 +172,9 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert (directed.meta["policy"], trained["victim"], trained["settings"]["init"]) == ("directed", "dagger", "")
     assert (sensory["directed"], sensory["directed_steps"], sensory["directed_queries"]) == (
         relative(out / "directed-sensory.pt"), trained["steps"], trained["queries"])
+    assert sensory["directed_zoo"] is None and sensory["directed_zoo_screened"] == []  # DAgger's own left out
     assert (f"Directed ARIL-A: `{sensory['directed']}`, trained {trained['steps']:,} steps against the policy, "
-            f"{trained['queries']:,} questions.") in text
+            f"{trained['queries']:,} questions, from fresh weights") in text
     for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
         alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
                                     attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,
@@ -261,9 +262,9 @@ def test_the_adversary_is_told_the_policy_as_typed_or_the_file_of_a_per_mode_nam
 @pytest.mark.slow
 def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_file(small_card, tmp_path):
     """The bundled DAgger learner run as the user's own node: every cell through the graph, the surrogate fitted to
-    the node's answers, ARIL-A trained against it; the graph is bit-exact to the engine, so the node answers as the
-    file does, the surrogate is the file's and the figures are the engine's (random runs through the graph in
-    tests/test_graph.py)."""
+    the node's answers, ARIL-A and the directed ARIL-A trained against it; the graph is bit-exact to the engine, so
+    the node answers as the file does, the surrogate is the file's and the figures are the engine's (random runs
+    through the graph in tests/test_graph.py)."""
     import os
     import signal
     import subprocess
@@ -274,7 +275,8 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     try:
         lines = []
         scorecard(ScorecardConfig(policy="external", domain=os.environ["ROS_DOMAIN_ID"], out=str(tmp_path / "node"),
-                                  **{**SMALL, "attacks": "aril_a"}), log=lambda line, **_: lines.append(line))
+                                  **{**SMALL, "attacks": "aril_a,aril_a_directed"}),
+                  log=lambda line, **_: lines.append(line))
     finally:
         node.send_signal(signal.SIGINT)
         node.wait(timeout=20)
@@ -290,6 +292,10 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     screened_for_file = {tuple(member) for member in by_file["zoo_screened"]}
     assert screened_for_file < {tuple(member) for member in by_node["zoo_screened"]}
     assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]
+    # the directed ARIL-A's training asked the node the questions it asked the file, and took the same return
+    assert (by_node["directed_steps"], by_node["directed_queries"]) == (by_file["directed_steps"],
+                                                                        by_file["directed_queries"])
+    assert by_node["attacks"]["aril_a_directed"]["1.0"] == by_file["attacks"]["aril_a_directed"]["1.0"]
     assert any(line.startswith("[surrogate]") for line in lines)
 
 

@@ -19,7 +19,8 @@ from aril_ros.attacks import make_attack
 from aril_ros.envs import layout_of
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.policy import load_policy, load_weights, policy_file, resolve_policy
-from aril_ros.registry import DATA_DIR, DEFAULT_POLICY, DEFENSES, DIRECTED_ROW, PAPER_ENVS, calibrated_eps
+from aril_ros.registry import (DATA_DIR, DEFAULT_POLICY, DEFENSES, DIRECTED_ROW, PAPER_ENVS, calibrated_eps,
+                               directed_adversary_path)
 from aril_ros.rollout import RolloutEngine
 from aril_ros.surrogate import SurrogateConfig, fit_surrogate
 from aril_ros.verdict import SEARCH, victim_digest, zoo_members
@@ -64,7 +65,7 @@ def run_pipeline(folder, eps: float = EPS):
         made, directed = verdict.run_pipelines(
             [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON),
              verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet)], quiet)
-    return dataclasses.replace(made, directed=directed), boxes
+    return dataclasses.replace(made, directed=directed.directed), boxes
 
 
 @pytest.fixture(scope="module")
@@ -214,6 +215,42 @@ def test_the_zoo_leaves_out_every_adversary_trained_against_the_scored_policy(le
     shutil.copy(policy_file(learner, env_id, mode), copy)
     assert {str(p) for p in zoo_members(env_id, mode, victim_digest(str(copy), env_id, mode))} == kept
     assert victim_digest("ros", env_id, mode) is None
+
+
+@pytest.mark.parametrize("mode", ["sensory", "physical"])
+@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Ant-v5"])
+@pytest.mark.parametrize("learner", ["dagger", "bc", "dr", "aril"])
+def test_the_directed_zoo_leaves_out_the_directed_aril_a_trained_against_the_scored_policy(learner, env_id, mode):
+    """The directed step's warm starts: every bundled directed ARIL-A of the env and mode but the one trained against
+    the scored learner's file (by its digest)."""
+    every = set(zoo_members(env_id, mode, None, verdict.DIRECTED_ZOO))
+    assert len(every) == 4
+    kept = set(zoo_members(env_id, mode, victim_digest(learner, env_id, mode), verdict.DIRECTED_ZOO))
+    assert every - kept == {directed_adversary_path(env_id, mode, learner)}
+
+
+@pytest.mark.slow
+def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_from_the_policy(tmp_path):
+    """Scoring BC, the directed zoo's members (DAgger's directed ARIL-A, BC's own left out) are screened against the
+    policy's answers, counted, and the training starts from the strongest; a rerun makes nothing."""
+    box = []
+
+    def answers_only(policy):
+        box.append(AnswersOnly(policy))
+        return box[-1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(verdict, "Answers", answers_only)
+        made = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
+                                                                log=quiet, horizon=HORIZON)], quiet)[0]
+    members = zoo_members(ENV, MODE, victim_digest("bc", ENV, MODE), verdict.DIRECTED_ZOO)
+    assert [member for _, member in made.directed_screened] == [verdict.relative(m) for m in members]  # DAgger's
+    assert str(made.directed_zoo) == verdict.relative(members[0]) and made.directed_queries == box[0].asked > 0
+    trained = load_adversary(made.directed).meta["provenance"]
+    assert trained["settings"]["init"] == str(made.directed_zoo) and trained["victim"] == "bc"
+    again = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
+                                                             log=quiet, horizon=HORIZON)], quiet)[0]
+    assert again == made
 
 
 @pytest.mark.slow

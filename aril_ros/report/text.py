@@ -305,7 +305,8 @@ HOW_ATTACKS_ASK = (
     "action on the true state and on the perturbed one; the count below); asks as the zoo's;",
     "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
     "ARIL-A's own question, the most damaging applied;",
-    "- ARIL-A, directed: trained against the policy's answers from fresh weights (the count below); it picks a "
+    "- ARIL-A, directed: trained against the policy's answers (the count below) from the bundled directed ARIL-A "
+    "that took the most return from it on screening episodes (none trained against this very file); it picks a "
     "direction for the policy's action, asks the policy about two points per perturbed entry each step (its action's "
     "slope along each) besides its own question, and takes the corner of the box that moves the action furthest "
     "along that direction;",
@@ -316,7 +317,11 @@ def pipeline_lines(mode_result: dict) -> list[str]:
     """The page's lines on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice,
     ARIL-A's training, the directed ARIL-A's (of what the mode's rows needed)."""
     directed = ([f"Directed ARIL-A: `{mode_result['directed']}`, trained {mode_result['directed_steps']:,} steps "
-                 f"against the policy, {mode_result['directed_queries']:,} questions.", ""]
+                 f"against the policy, {mode_result['directed_queries']:,} questions, "
+                 + (f"from `{mode_result['directed_zoo']}`, the strongest of "
+                    f"{len(mode_result['directed_zoo_screened'])} against the policy "
+                    f"({mode_result['directed_zoo_queries']:,} questions)." if mode_result["directed_zoo"]
+                    else "from fresh weights (no bundled directed ARIL-A of another policy)."), ""]
                 if "directed" in mode_result else [])
     if "surrogate" not in mode_result:
         return directed
