@@ -154,16 +154,21 @@ SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", SEAR
 PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`): the directed row needs only its own
 step's (:func:`~aril_ros.verdict.directed_pipeline`), the others those of the steps before it."""
-QUICK_ROWS = {"sensory": ("fd_fgsm", "aril_a_search"), "physical": ("aril_a",)}
+QUICK_ROWS = {"sensory": ("fd_fgsm", DIRECTED_ROW), "physical": ("aril_a",)}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes. Chosen on screening
 episodes (results/verdict-screening/verdict.md, 16 cells of HalfCheetah and Ant: the benchmark's fewest rows that
 find 0.95 of every row's drop; results/aril_a_tuning.md, issue 38): with the aril_a rows running the stronger of the
 zoo's best and the trained ARIL-A, the rows left out (random, SPSA^k, transfer and the zoo in both modes, FGSM by
-finite differences and search in physical mode) lifted no cell's verdict to 0.9 of the reference. fd_fgsm (one
-iteration: 16 questions a step on HalfCheetah, 26 on Ant, one probe batch) took the place of transfer once every
-screening cell had scored it: it takes more in 5 of the 8 sensory cells (Ant BC -60.8% against -53.9%, HalfCheetah
-ARIL -8.2% against -5.3%); where transfer takes more by more than a point (Ant DAgger, -38.4% against -27.7%), ARIL-A +
-search reaches the reference (-34.4% against white-box FGSM^k's -34.9%)."""
+finite differences, search and the directed ARIL-A in physical mode) lifted no cell's verdict to 0.9 of the
+reference. fd_fgsm (one iteration: 16 questions a step on HalfCheetah, 26 on Ant, one probe batch) took the place of
+transfer once every screening cell had scored it (Ant BC -60.8% against -53.9%, HalfCheetah ARIL -8.2% against
+-5.3%); the directed ARIL-A (trained 500k steps from fresh weights) took the place of ARIL-A + search once every
+cell had scored it too: it took more in all 8 sensory cells (Ant DAgger -57.0% against -34.4%, Ant DR -33.9% against
+-15.3%, HalfCheetah DR -30.9% against -27.2%, HalfCheetah ARIL -7.3% against -6.7%), so a sensory verdict needs no
+surrogate, zoo or categorical ARIL-A. In physical mode it took more than ARIL-A in 2 of the 8 cells (Ant DAgger
+-83.3% against -70.2%, Ant ARIL -68.4% against -65.0%); the fewest rows there were the zoo's and ARIL-A's (ARIL-A
+trained against the surrogate in those cells; with pipeline 4, ARIL-A's alone: results/verdict-screening/pipeline4),
+so in physical mode the directed row is the full budget's."""
 FULL_ROWS = {"sensory": ("random", "fd_fgsm", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW),
              "physical": ("random", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)}
 """The full budget's black-box rows: every one but SPSA^k, and in physical mode but FGSM by finite differences too.

@@ -301,7 +301,7 @@ def another_architectures_card(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes_answer(another_architectures_card):
-    """The quick budget through the graph: each mode's black-box rows, each cell on the same seeds; ARIL-A (+ search)
+    """The quick budget through the graph: each mode's black-box rows, each cell on the same seeds; each ARIL-A
     asks its questions per step as probes, all in the run's log, and the steps are the node's answers to the
     observations stepped on. The quick budget unshortened is measured in docs/scoring.md."""
     from aril_ros.scorecard import QUICK_ROWS
@@ -317,10 +317,14 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
                 assert [e["env_seed"] for e in cell["episodes"]] == seeds
                 assert {e["steps"] for e in cell["episodes"]} == {20}
         # ARIL-A asks the node its action a step, and with search SEARCH + 1 candidates more; FGSM by finite
-        # differences two questions per perturbed entry: all probes in the log
+        # differences two questions per perturbed entry, the directed ARIL-A its action and as many: all probes in
+        # the log
+        entries = layout_of(card["settings"]["env"]).n_position
         logs = {"aril_a": (f"aril_a-adversary-{mode}", 1),
                 "aril_a_search": (f"aril_a-adversary-{mode}-search{SEARCH}", SEARCH + 2),
-                "fd_fgsm": ("fd_fgsm", 2 * layout_of(card["settings"]["env"]).n_position)}
+                "aril_a_directed": (f"aril_a-directed-{mode}", 1 + 2 * entries),
+                "fd_fgsm": ("fd_fgsm", 2 * entries)}
+        assert set(result["attacks"]) <= set(logs)
         for attack, (name, asked) in logs.items():
             if attack not in result["attacks"]:
                 continue
@@ -337,9 +341,10 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
 @pytest.mark.slow
 def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
     """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
-    was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and each mode's
-    surrogate's and ARIL-A training's questions (asked after those two runs, before the first cell's). The zoo's row
-    asks as the ARIL-A row does, with another file, and SPSA^k's questions are counted in test_scorecard."""
+    was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and what each mode's
+    rows needed asked (after those two runs, before the first cell's): in physical mode the surrogate's and ARIL-A
+    training's questions, in sensory mode the directed zoo's screening's and the directed ARIL-A training's. The zoo's
+    row asks as the ARIL-A row does, with another file, and SPSA^k's questions are counted in test_scorecard."""
     _, card, _, tags, _ = another_architectures_card
     cells = []
     for mode, result in card["modes"].items():
@@ -347,13 +352,20 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
             cell = sweep["1.0"]
             assert np.isfinite(cell["mean_return"]) and [e["steps"] for e in cell["episodes"]] == [20, 20]
             cells.append(cell)
-        assert result["surrogate_queries"] > 0 and np.isfinite(result["worst"]["drop_pct"])
+        assert np.isfinite(result["worst"]["drop_pct"])
         per_step = {attack: sweep["1.0"]["queries_per_step"] for attack, sweep in result["attacks"].items()}
-        assert per_step == {"sensory": {"fd_fgsm": 6, "aril_a_search": 10}, "physical": {"aril_a": 1}}[mode]  # Swimmer: 3 entries
+        # Swimmer: 3 perturbed entries
+        assert per_step == {"sensory": {"fd_fgsm": 6, "aril_a_directed": 7}, "physical": {"aril_a": 1}}[mode]
     steps = lambda cell: sum(e["steps"] for e in cell["episodes"])  # noqa: E731
-    surrogates = [result["surrogate_queries"] for result in card["modes"].values()]
-    trainings = [result["adversary_queries"] for result in card["modes"].values()]
-    asked = sum(surrogates) + sum(trainings)
+    sensory, physical = card["modes"]["sensory"], card["modes"]["physical"]
+    assert "surrogate" not in sensory and "directed" not in physical  # what each mode's quick rows need, no more
+    # in the order the node was asked (each connection's questions numbered from 0): the physical copy, the directed
+    # zoo's screening (every member kept: no file to leave out), then the two trainings (workers:=1, one after the
+    # other)
+    in_turn = [physical["surrogate_queries"], sensory["directed_zoo_queries"], physical["adversary_queries"],
+               sensory["directed_queries"]]
+    assert all(queries > 0 for queries in in_turn)
+    asked = sum(in_turn)
     clean = card["modes"]["sensory"]["clean"]
     late = list(card["timing"]["policies"]["external"]["cells"].values())  # the quick budget's timing row, no probes
     assert len(late) == 1 and [e["steps"] for e in late[0]["episodes"]] == [20, 20]
@@ -363,11 +375,10 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
                                                                              for cell in cells]
     expected[1 + len(late)] = (expected[1 + len(late)][0], expected[1 + len(late)][1] + asked)
     assert runs_answered(tags) == expected
-    # between the timing run and the first cell's (the modes' pipelines side by side, each connection's questions
-    # numbered from 0): each mode's copy, then each mode's ARIL-A training (workers:=1, one after the other), each as
-    # many questions as the page says
+    # between the timing run and the first cell's, each as many questions as the page says
     between = tags[before:before + asked]  # the first cell's own questions follow (fd_fgsm's before its first step)
     starts = [i for i, tag in enumerate(between) if tag.endswith("/probe/0")]
-    assert np.diff([*starts, len(between)]).tolist() == surrogates + trainings
-    assert all(training >= 2 * 2048 for training in trainings)  # two questions a training step
+    assert np.diff([*starts, len(between)]).tolist() == in_turn
+    # ARIL-A: two questions a training step; the directed one's: its input, the actor's two per entry, the answer
+    assert physical["adversary_queries"] >= 2 * 2048 and sensory["directed_queries"] >= (2 + 2 * 3) * 2048
     assert all(cell["queries"] == cell["queries_per_step"] * steps(cell) for cell in cells)
