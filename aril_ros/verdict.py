@@ -70,8 +70,6 @@ DIRECTED_ZOO = (DATA_DIR / "directed-adversary",)
 against the policy itself (a director's direction is in the policy's action space, which a copy's errors would
 bend): on HalfCheetah DR and ARIL sensory, DAgger's directed ARIL-A trained 500k steps more against the learner took
 -34.4% and -11.3% where 500k from fresh weights took -30.9% and -7.3% (results/aril_a_tuning.md, issue 38)."""
-
-
 DIRECTED = 1
 """The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again."""
 
@@ -107,14 +105,14 @@ class Offline:
     call: tuple
 
 
-def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list:
-    """What each pipeline makes (a :func:`pipeline`'s :class:`BlackBoxAttacks`, a :func:`directed_pipeline`'s file),
-    the pipelines side by side: each runs until it asks for a job (an
+def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
+    """What each pipeline makes (a :class:`BlackBoxAttacks`: a :func:`pipeline`'s, a :func:`directed_pipeline`'s
+    directed fields), the pipelines side by side: each runs until it asks for a job (an
     :class:`Offline` one, which puts no question to the policy, or an adversary's training, which asks it on its own
     connection), and the jobs all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the
     cluster at ``address``); the surrogates' questions stay one pipeline at a time. Two modes fit, screen and train on
     two CPUs in the time of one."""
-    made: list = [None] * len(pipelines)
+    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
     asked: dict[int, AdversaryConfig | Offline] = {}
 
     def advance(index: int, answer=None) -> None:
@@ -175,7 +173,7 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
         queries = victim.asked
     yield from fitting(questions, answers, env_id, {**wanted, "queries": queries}, surrogate, log)
     left_out = victim_digest(leave_out or victim_name, env_id, mode)
-    members = zoo_members(env_id, mode, left_out)
+    members = zoo_members(env_id, mode, left_out, ZOO_FOLDERS)
     returns = yield Offline("zoo screenings", screen_zoo, ([Shipped(member) for member in members], Shipped(surrogate),
                                                            env_id, mode, eps, expert_file, horizon))
     screened = sorted(zip(returns, map(relative, members)))
@@ -288,8 +286,7 @@ def victim_digest(victim_name: str, env_id: str, mode: str) -> str | None:
     return digest_of(policy_file(victim_name, env_id, mode).read_bytes())
 
 
-def zoo_members(env_id: str, mode: str, exclude_sha256: str | None, folders: tuple[Path, ...] = ZOO_FOLDERS
-                ) -> list[Path]:
+def zoo_members(env_id: str, mode: str, exclude_sha256: str | None, folders: tuple[Path, ...]) -> list[Path]:
     """The bundled adversaries in ``folders`` (the zoo's, or the directed step's) of ``env_id`` and ``mode`` but any
     trained against the policy file of digest ``exclude_sha256`` (leave-one-out)."""
     members = []

@@ -13,10 +13,10 @@ from aril_ros.cell_runner import engine_cell
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.adversary_net import load_adversary
 from aril_ros.policy import load_policy
-from aril_ros.registry import SCORECARD_ATTACKS
+from aril_ros.registry import SCORECARD_ATTACKS, directed_adversary_path
 from aril_ros.report.stats import t95
 from aril_ros.scorecard import PIPELINE_ATTACKS, SCORED_ATTACKS, ScorecardConfig, scorecard
-from aril_ros.verdict import relative, victim_digest, zoo_members
+from aril_ros.verdict import ZOO_FOLDERS, relative, victim_digest, zoo_members
 
 
 SMALL = dict(env="Swimmer-v5", modes="sensory", episodes=3, adversary_steps=4096, horizon=25, scales="2,1",
@@ -155,7 +155,7 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert (sensory["surrogate_fidelity"], sensory["surrogate_queries"]) == (made["fidelity"], made["queries"])
     screened = sensory["zoo_screened"]
     assert sensory["zoo"] == screened[0][1] and screened == sorted(screened)
-    others = zoo_members(cfg.env, "sensory", victim_digest("dagger", cfg.env, "sensory"))
+    others = zoo_members(cfg.env, "sensory", victim_digest("dagger", cfg.env, "sensory"), ZOO_FOLDERS)
     assert sorted(member for _, member in screened) == sorted(relative(member) for member in others)
     fidelity = made["fidelity"]
     assert (f"Surrogate `{sensory['surrogate']}`: {made['queries']:,} questions to the policy, held-out error "
@@ -292,10 +292,13 @@ def test_an_external_node_is_scored_through_the_graph_as_the_engine_scores_its_f
     screened_for_file = {tuple(member) for member in by_file["zoo_screened"]}
     assert screened_for_file < {tuple(member) for member in by_node["zoo_screened"]}
     assert by_node["attacks"]["aril_a"] == by_file["attacks"]["aril_a"]
-    # the directed ARIL-A's training asked the node the questions it asked the file, and took the same return
+    # the directed ARIL-A: trained as many steps against the node, a step's questions as many; the node's zoo keeps
+    # DAgger's own directed ARIL-A (screened against the node, its questions counted), the file's sets it aside
     assert (by_node["directed_steps"], by_node["directed_queries"]) == (by_file["directed_steps"],
                                                                         by_file["directed_queries"])
-    assert by_node["attacks"]["aril_a_directed"]["1.0"] == by_file["attacks"]["aril_a_directed"]["1.0"]
+    assert by_file["directed_zoo"] is None and by_node["directed_zoo"] == relative(
+        directed_adversary_path(SMALL["env"], "sensory")) and by_node["directed_zoo_queries"] > 0
+    assert by_node["attacks"]["aril_a_directed"]["1.0"]["queries_per_step"] == 7  # Swimmer: 1 + 2 x 3 entries
     assert any(line.startswith("[surrogate]") for line in lines)
 
 

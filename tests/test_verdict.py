@@ -203,17 +203,17 @@ def test_the_zoo_leaves_out_every_adversary_trained_against_the_scored_policy(le
     """Leave-one-out, by the scored file's digest: the bundled adversaries trained against that learner (each of
     its three seeds, the older files by the provenance they recorded of it) are set aside, every other kept; a copy
     of the file elsewhere is the same policy; an external node (no file) keeps them all."""
-    every = {str(p) for p in zoo_members(env_id, mode, None)}
+    every = {str(p) for p in zoo_members(env_id, mode, None, verdict.ZOO_FOLDERS)}
     assert every == {str(p) for folder in verdict.ZOO_FOLDERS for p in folder.glob(f"{env_id}-{mode}*.pt")}
     own = members_against(env_id, mode, learner)
     assert own < every
-    kept = {str(p) for p in zoo_members(env_id, mode, victim_digest(learner, env_id, mode))}
+    kept = {str(p) for p in zoo_members(env_id, mode, victim_digest(learner, env_id, mode), verdict.ZOO_FOLDERS)}
     assert kept == every - own
     if learner == "bc":  # DAgger's adversaries stay in BC's zoo
         assert members_against(env_id, mode, DEFAULT_POLICY) <= kept
     copy = tmp_path / "mine.pt"
     shutil.copy(policy_file(learner, env_id, mode), copy)
-    assert {str(p) for p in zoo_members(env_id, mode, victim_digest(str(copy), env_id, mode))} == kept
+    assert {str(p) for p in zoo_members(env_id, mode, victim_digest(str(copy), env_id, mode), verdict.ZOO_FOLDERS)} == kept
     assert victim_digest("ros", env_id, mode) is None
 
 
@@ -311,7 +311,8 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
     the file it serves; then it leaves out the same ones as that file scored itself."""
     own = victim_digest("dagger", ENV, MODE)
     assert verdict.victim_digest("ros", ENV, MODE) is None
-    assert len(zoo_members(ENV, MODE, None)) == len(zoo_members(ENV, MODE, own)) + 3
+    everyone, kept = (zoo_members(ENV, MODE, digest, verdict.ZOO_FOLDERS) for digest in (None, own))
+    assert len(everyone) == len(kept) + 3
     folder = tmp_path / "as-node"
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "answering", lambda name, env, mode, domain: NodeStandIn())
@@ -319,7 +320,7 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
         made = one_pipeline("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
                             leave_out="dagger")
     screened = {member for _, member in made.screened}
-    assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own)}
+    assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own, verdict.ZOO_FOLDERS)}
     assert load_adversary(made.adversary).meta["provenance"]["victim"] == "ros"
 
 
@@ -555,7 +556,7 @@ def test_benchmark_adds_a_reference_candidate_bundled_since_and_judges_the_cell_
                                                                                  "sensory", "quick")
     folder = bench.cell_folder(cfg, *cell)
     folder.mkdir(parents=True)
-    old = bench_cell({"aril_a_search": -30.0}, mode="sensory", episodes=episodes, cpu=cpu(), reference=-40.0)
+    old = bench_cell({DIRECTED_ROW: -30.0}, mode="sensory", episodes=episodes, cpu=cpu(), reference=-40.0)
     del old["reference"]["drops"]["bundled_directed"]
     old["clean"] = 5001.5
     (folder / "cell.json").write_text(json.dumps(old))
