@@ -175,8 +175,8 @@ def adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Pat
 def directed_adversary_path(env_id: str, mode: str, defense: str = DEFAULT_POLICY) -> Path:
     """Where the bundled directed ARIL-A (``policy:=directed``) against the bundled learner ``defense`` lives (whether
     or not it exists): the one against DAgger is the attack tables' directed row; each is part of the verdict
-    benchmark's reference for its learner. None is in the verdict's zoo (their folder is not the zoo's): the scorecard
-    trains its directed ARIL-A against the policy from fresh weights."""
+    benchmark's reference for its learner, and a warm start of the scorecard's directed ARIL-A (their folder is
+    :data:`aril_ros.verdict.DIRECTED_ZOO`, not the zoo's)."""
     if defense == DEFAULT_POLICY:
         return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}.pt"
     return DATA_DIR / "directed-adversary" / f"{env_id}-{mode}-{defense}.pt"

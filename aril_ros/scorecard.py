@@ -151,9 +151,12 @@ class Budget:
 
 SCORED_ATTACKS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW, "fgsm", "fgsm_k")
 """In the order the page lists them: noise, the black-box attacks, the white-box ones (a file's alone)."""
-PIPELINE_ATTACKS = ("transfer", "zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)
+SURROGATE_ATTACKS = ("transfer", "zoo", "aril_a", SEARCH_ROW)
+"""The rows that need the files of the black-box pipeline's first four steps (:func:`aril_ros.verdict.pipeline`: the
+surrogate, the zoo's best, ARIL-A)."""
+PIPELINE_ATTACKS = (*SURROGATE_ATTACKS, DIRECTED_ROW)
 """The rows that need the black-box pipeline's files (:mod:`aril_ros.verdict`): the directed row needs only its own
-step's (:func:`~aril_ros.verdict.directed_pipeline`), the others those of the steps before it."""
+step's (:func:`~aril_ros.verdict.directed_pipeline`)."""
 QUICK_ROWS = {"sensory": ("fd_fgsm", DIRECTED_ROW), "physical": ("aril_a",)}
 """The quick budget's black-box rows, so that an external node's quick verdict takes minutes. Chosen on screening
 episodes (results/verdict-screening/verdict.md, 16 cells of HalfCheetah and Ant: the benchmark's fewest rows that
@@ -381,7 +384,7 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
     iterations = {"spsa": {"k": budget.spsa_iterations, "samples": budget.spsa_samples},
                   "fd_fgsm": {"k": budget.fd_iterations}}.get(attack, {})
     files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
-             SEARCH_ROW: made and made.adversary, DIRECTED_ROW: made and made.directed}
+             SEARCH_ROW: made and made.adversary, DIRECTED_ROW: made and made.directed and made.directed.file}
     learned = row_attack(attack) == "aril_a"
     return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode,
                       attack=row_attack(attack), eps=eps,
@@ -437,7 +440,7 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
     for the transfer, zoo and ARIL-A rows, step 5 for the directed one), in ``out``; a rerun reuses them. The
     pipelines run side by side, their trainings at once on ``workers`` CPUs (an external node's scorecard starts a Ray
     for them alone: its cells run in this process)."""
-    first = [mode for mode in modes if set(rows[mode]) & set(PIPELINE_ATTACKS[:-1])]
+    first = [mode for mode in modes if set(rows[mode]) & set(SURROGATE_ATTACKS)]
     directed = [mode for mode in modes if DIRECTED_ROW in rows[mode]]
     if not first and not directed:
         return {}
@@ -457,9 +460,7 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
         made = run_pipelines(pipelines, log, cfg.workers, cfg.address)
     attacks = dict(zip(first, made))
     for mode, steered in zip(directed, made[len(first):]):
-        attacks[mode] = dataclasses.replace(attacks.get(mode, BlackBoxAttacks()), **{
-            field: getattr(steered, field) for field in ("directed", "directed_zoo", "directed_screened",
-                                                         "directed_queries")})
+        attacks[mode] = dataclasses.replace(attacks.get(mode, BlackBoxAttacks()), directed=steered)
     return attacks
 
 
@@ -475,12 +476,11 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
                    "zoo_screened": made.screened, "adversary": relative(made.adversary),
                    "adversary_steps": trained["steps"], "adversary_queries": trained["queries"]}
     if made.directed:
-        trained = load_adversary(made.directed).meta["provenance"]
-        record |= {"directed": relative(made.directed), "directed_steps": trained["steps"],
-                   "directed_queries": trained["queries"],
-                   "directed_zoo": made.directed_zoo and relative(made.directed_zoo),
-                   "directed_zoo_screened": made.directed_screened,
-                   "directed_zoo_queries": made.directed_queries}
+        steered = made.directed
+        trained = load_adversary(steered.file).meta["provenance"]
+        record |= {"directed": relative(steered.file), "directed_steps": trained["steps"],
+                   "directed_queries": trained["queries"], "directed_zoo": steered.zoo and relative(steered.zoo),
+                   "directed_zoo_screened": steered.screened, "directed_zoo_queries": steered.queries}
     return record
 
 

@@ -75,6 +75,19 @@ DIRECTED = 1
 
 
 @dataclass(frozen=True)
+class DirectedAttack:
+    """What step 5 made for one mode: the directed ARIL-A and where it started."""
+
+    file: Path
+    zoo: Path | None = None
+    """the bundled directed ARIL-A it was trained from (None: fresh weights)"""
+    screened: list[tuple[float, str]] = ()
+    """every directed zoo member's mean return against the policy, best first"""
+    queries: int = 0
+    """the questions the directed zoo's screening put to the policy"""
+
+
+@dataclass(frozen=True)
 class BlackBoxAttacks:
     """What the pipeline made for one mode: the surrogate (transfer), the zoo's best, the trained adversary and the
     directed one; None for what the scored rows did not need."""
@@ -85,13 +98,7 @@ class BlackBoxAttacks:
     adversary: Path | None = None
     screened: list[tuple[float, str]] = ()
     """every zoo member's mean return against the surrogate, best first"""
-    directed: Path | None = None
-    directed_zoo: Path | None = None
-    """the bundled directed ARIL-A the directed one was trained from (None: fresh weights)"""
-    directed_screened: list[tuple[float, str]] = ()
-    """every directed zoo member's mean return against the policy, best first"""
-    directed_queries: int = 0
-    """the questions the directed zoo's screening put to the policy"""
+    directed: DirectedAttack | None = None
 
 
 @dataclass(frozen=True)
@@ -105,14 +112,15 @@ class Offline:
     call: tuple
 
 
-def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = "") -> list[BlackBoxAttacks]:
-    """What each pipeline makes (a :class:`BlackBoxAttacks`: a :func:`pipeline`'s, a :func:`directed_pipeline`'s
-    directed fields), the pipelines side by side: each runs until it asks for a job (an
+def run_pipelines(pipelines: list, log=print, workers: int = 1, address: str = ""
+                  ) -> list[BlackBoxAttacks | DirectedAttack]:
+    """What each pipeline makes (a :func:`pipeline`'s :class:`BlackBoxAttacks`, a :func:`directed_pipeline`'s
+    :class:`DirectedAttack`), the pipelines side by side: each runs until it asks for a job (an
     :class:`Offline` one, which puts no question to the policy, or an adversary's training, which asks it on its own
     connection), and the jobs all asked for run at once as sweep tasks (``workers`` CPUs of a local Ray, or the
     cluster at ``address``); the surrogates' questions stay one pipeline at a time. Two modes fit, screen and train on
     two CPUs in the time of one."""
-    made: list[BlackBoxAttacks | None] = [None] * len(pipelines)
+    made: list[BlackBoxAttacks | DirectedAttack | None] = [None] * len(pipelines)
     asked: dict[int, AdversaryConfig | Offline] = {}
 
     def advance(index: int, answer=None) -> None:
@@ -199,17 +207,15 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
     episodes of ``horizon`` steps (but any trained against it), and a directed ARIL-A trained ``steps`` steps against
     it from the one that took the most return, ``directed-<mode>.pt``. Its record, ``directed-<mode>.json``, lets a
     rerun for the same policy, eps, horizon and steps make nothing. A generator like :func:`pipeline` (run them
-    together with :func:`run_pipelines`): it yields the training, returns a :class:`BlackBoxAttacks` of the directed
-    fields alone."""
+    together with :func:`run_pipelines`): it yields the training, returns the :class:`DirectedAttack`."""
     out, record = folder / f"directed-{mode}.pt", folder / f"directed-{mode}.json"
     wanted = {"directed": DIRECTED, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
               "adversary_steps": steps, "leave_out": leave_out}
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {out}")
-        return BlackBoxAttacks(directed=out, directed_zoo=made["zoo"] and Path(made["zoo"]),
-                               directed_screened=[tuple(s) for s in made["zoo_screened"]],
-                               directed_queries=made["queries"])
+        return DirectedAttack(out, made["zoo"] and Path(made["zoo"]), [tuple(s) for s in made["zoo_screened"]],
+                              made["queries"])
     members = zoo_members(env_id, mode, victim_digest(leave_out or victim_name, env_id, mode), DIRECTED_ZOO)
     returns, queries = [], 0
     if members:
@@ -228,7 +234,7 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
                           out=str(out))
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "queries": queries,
                                   "files": {out.name: digest_of(out.read_bytes())}}, indent=1) + "\n")
-    return BlackBoxAttacks(directed=out, directed_zoo=zoo, directed_screened=screened, directed_queries=queries)
+    return DirectedAttack(out, zoo, screened, queries)
 
 
 @dataclass(frozen=True)

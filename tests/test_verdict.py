@@ -65,7 +65,7 @@ def run_pipeline(folder, eps: float = EPS):
         made, directed = verdict.run_pipelines(
             [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON),
              verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet)], quiet)
-    return dataclasses.replace(made, directed=directed.directed), boxes
+    return dataclasses.replace(made, directed=directed), boxes
 
 
 @pytest.fixture(scope="module")
@@ -99,9 +99,9 @@ def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_questio
     assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
     # the directed ARIL-A from fresh weights against the policy's answers: a training step asks for its action on the
     # true state, on the two points per perturbed entry the actor's slopes need, and on the perturbed state
-    directed = load_adversary(made.directed)
+    directed = load_adversary(made.directed.file)
     trained = directed.meta["provenance"]
-    assert made.directed == folder / f"directed-{MODE}.pt" and directed.meta["policy"] == "directed"
+    assert made.directed.file == folder / f"directed-{MODE}.pt" and directed.meta["policy"] == "directed"
     assert trained["victim_sha256"] == sha256(policy_file("dagger", ENV)) and trained["settings"]["init"] == ""
     assert trained["queries"] == directing.asked >= (2 + 2 * N_POSITION) * STEPS
 
@@ -114,7 +114,8 @@ def test_each_black_box_attack_runs_against_a_policy_that_only_answers(pipeline,
     _, made, _ = pipeline
     policy, expert = resolve_policy("dagger", ENV), resolve_policy("expert", ENV)
     victim = AnswersOnly(policy)
-    file = {"transfer": made.surrogate, "zoo": made.zoo, DIRECTED_ROW: made.directed}.get(attack, made.adversary)
+    files = {"transfer": made.surrogate, "zoo": made.zoo, DIRECTED_ROW: made.directed.file}
+    file = files.get(attack, made.adversary)
     chosen = make_attack("transfer" if attack == "transfer" else "aril_a", layout_of(ENV), EPS, victim=victim,
                          expert=expert, adversary=str(file), mode=MODE, rescale=True,
                          search=SEARCH if attack == "aril_a_search" else 0)
@@ -244,10 +245,10 @@ def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_f
         made = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
                                                                 log=quiet, horizon=HORIZON)], quiet)[0]
     members = zoo_members(ENV, MODE, victim_digest("bc", ENV, MODE), verdict.DIRECTED_ZOO)
-    assert [member for _, member in made.directed_screened] == [verdict.relative(m) for m in members]  # DAgger's
-    assert str(made.directed_zoo) == verdict.relative(members[0]) and made.directed_queries == box[0].asked > 0
-    trained = load_adversary(made.directed).meta["provenance"]
-    assert trained["settings"]["init"] == str(made.directed_zoo) and trained["victim"] == "bc"
+    assert [member for _, member in made.screened] == [verdict.relative(m) for m in members]  # DAgger's
+    assert str(made.zoo) == verdict.relative(members[0]) and made.queries == box[0].asked > 0
+    trained = load_adversary(made.file).meta["provenance"]
+    assert trained["settings"]["init"] == str(made.zoo) and trained["victim"] == "bc"
     again = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
                                                              log=quiet, horizon=HORIZON)], quiet)[0]
     assert again == made
@@ -257,7 +258,7 @@ def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_f
 def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_new_ones(pipeline, tmp_path):
     folder, first, _ = pipeline
     rerun = shutil.copytree(folder, tmp_path / "rerun")  # copy2: the files keep their times
-    files = [rerun / first.surrogate.name, rerun / first.adversary.name, rerun / first.directed.name]
+    files = [rerun / first.surrogate.name, rerun / first.adversary.name, rerun / first.directed.file.name]
     before = [(p.stat().st_mtime_ns, p.read_bytes()) for p in files]
     again, boxes = run_pipeline(rerun)
     assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
@@ -265,8 +266,8 @@ def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_ne
     other, boxes = run_pipeline(rerun, eps=0.2)
     assert len(boxes) == 3 and all(box.asked > 0 for box in boxes)  # the policy asked again: a copy, two trainings
     assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
-    assert load_adversary(other.adversary).eps == load_adversary(other.directed).eps == 0.2
-    assert all(path.read_bytes() != old for path, (_, old) in zip((other.surrogate, other.adversary, other.directed),
+    assert load_adversary(other.adversary).eps == load_adversary(other.directed.file).eps == 0.2
+    assert all(path.read_bytes() != old for path, (_, old) in zip((other.surrogate, other.adversary, other.directed.file),
                                                                    before))
 
 

@@ -36,7 +36,7 @@ from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, directed_adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
-from ..scorecard import BUDGETS, PIPELINE_ATTACKS, ScorecardConfig, policy_in, scorecard
+from ..scorecard import BUDGETS, SURROGATE_ATTACKS, ScorecardConfig, policy_in, scorecard
 from ..verdict import PIPELINE
 
 BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", DIRECTED_ROW)
@@ -84,12 +84,10 @@ def reference(env: str, policy: str, mode: str, episodes: int, seed: int, result
     """The reference of a cell: the strongest of white-box FGSM^k (from the scorecard's ``mode`` results) and the
     bundled adversaries trained against this learner (:func:`bundled_references`), each with its paired drop from the
     scorecard's clean cell."""
-    drops = {"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"])}
-    files = {}
-    for name, adversary in bundled_references(env, policy, mode).items():
-        drops[name] = paired_drop(result["clean"], bundled_cell(env, policy, mode, episodes, seed, adversary))
-        files[name] = portable(str(adversary))
-    return strongest_reference(drops, files)
+    drops, files = bundled_drops(env, policy, mode, episodes, seed, result["clean"],
+                                 bundled_references(env, policy, mode))
+    return strongest_reference({"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]), **drops},
+                               files)
 
 
 def bundled_references(env: str, policy: str, mode: str) -> dict[str, Path]:
@@ -100,10 +98,14 @@ def bundled_references(env: str, policy: str, mode: str) -> dict[str, Path]:
     return {name: path for name, path in files.items() if path.exists()}
 
 
-def bundled_cell(env: str, policy: str, mode: str, episodes: int, seed: int, adversary: Path) -> dict:
-    """The returns of ``policy`` in ``mode`` under the bundled ``adversary`` on the cell's episodes."""
-    return episode_cell(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a", attack_file=str(adversary),
-                                   episodes=episodes, seed=seed))
+def bundled_drops(env: str, policy: str, mode: str, episodes: int, seed: int, clean: dict,
+                  adversaries: dict[str, Path]) -> tuple[dict, dict]:
+    """Each named bundled adversary's paired drop from ``clean`` (the cell's clean episodes), ``policy`` in ``mode``
+    under it on the cell's episodes, and the files they ran, by the same names."""
+    drops = {name: paired_drop(clean, episode_cell(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a",
+                                                              attack_file=str(path), episodes=episodes, seed=seed)))
+             for name, path in adversaries.items()}
+    return drops, {name: portable(str(path)) for name, path in adversaries.items()}
 
 
 def episode_cell(cfg: EvalConfig) -> dict:
@@ -171,15 +173,14 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
     again (its other rows are paired with those)."""
     done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
     figures = json.loads(done.read_text())
-    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"]
-               and (row not in PIPELINE_ATTACKS or row == DIRECTED_ROW)]
+    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"] and row not in SURROGATE_ATTACKS]
     references = {name: path for name, path in bundled_references(env, policy, mode).items()
                   if name not in figures["reference"]["drops"]}
     if not missing and not references:
         return
     if figures.get("cpu", cpu()) != cpu():  # a cell that did not record it: its clean episodes tell (below)
-        raise ValueError(f"{done} lacks the rows {', '.join(missing)}, and was scored on {figures['cpu']}: score them "
-                         f"on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
+        raise ValueError(f"{done} lacks {', '.join(missing or references)}, and was scored on {figures['cpu']}: score "
+                         f"them on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
     if missing:
         result, minutes = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing,
                                            done.parent / "added")
@@ -196,12 +197,9 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
     figures["minutes"] = round(figures["minutes"] + minutes, 2)
     if references:
         ref = figures["reference"]
-        drops = ref["drops"] | {name: paired_drop(result["clean"], bundled_cell(env, policy, mode, figures["episodes"],
-                                                                                 cfg.seed, path))
-                                for name, path in references.items()}
-        files = ref.get("files", {"bundled_aril_a": ref.get("file")}) | {
-            name: portable(str(path)) for name, path in references.items()}
-        figures["reference"] = strongest_reference(drops, files) | {"added": sorted(references)}
+        drops, files = bundled_drops(env, policy, mode, figures["episodes"], cfg.seed, result["clean"], references)
+        figures["reference"] = strongest_reference(ref["drops"] | drops, ref.get("files", {"bundled_aril_a": ref.get(
+            "file")}) | files) | {"added": sorted(references)}
     done.write_text(json.dumps(figures, indent=1) + "\n")
 
 
@@ -324,7 +322,7 @@ def lacking_note(cell: dict) -> str:
 
 
 def pipeline_note(cell: dict) -> str:
-    """For a cell whose pipeline rows (:data:`aril_ros.scorecard.PIPELINE_ATTACKS`) an older pipeline made, which
+    """For a cell whose pipeline rows (:data:`aril_ros.scorecard.SURROGATE_ATTACKS`) an older pipeline made, which
     one: cells record it since pipeline 4; those that record none had ARIL-A trained against the surrogate."""
     made = cell.get("pipeline")
     if made is None:
