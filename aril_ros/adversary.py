@@ -135,6 +135,10 @@ class AdversaryConfig:
                         "instead of fresh weights: ARIL's warm start from the previous round's adversary")
     out: str = arg("", "where to write the adversary (default: runs/adversary-<env>-<mode>.pt, a timing one "
                        "runs/timing-adversary-<env>.pt)")
+    snapshot_every: int = arg(0, "also write the adversary every this many steps before the end (0: never), beside "
+                                 "out:= as <its stem>-at-<steps>.pt: what the verdict's pipeline screens to keep the "
+                                 "strongest, since the last state is not always the one that takes the most return",
+                              low=0, high=10**9)
     threads: int = arg(1, "torch threads", low=1, high=256)
 
 
@@ -171,22 +175,44 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
     gen = torch.Generator().manual_seed(cfg.seed)
     collector = Collector(cfg, sims, resets, net, play, victim, expert, gen)
     started, steps = time.time(), 0
+    out = Path(cfg.out or (f"runs/timing-adversary-{cfg.env}.pt" if timed(cfg) else
+                           f"runs/adversary-{cfg.env}-{cfg.mode}.pt"))
+    marks = list(range(cfg.snapshot_every, cfg.steps, cfg.snapshot_every)) if cfg.snapshot_every else []
+    for stale in snapshots_of(out):  # another training's, which a screening would take for this one's
+        stale.unlink()
+
+    def save(path: Path) -> Path:
+        net.meta["provenance"] = {
+            **made_by, "victim": cfg.victim, "victim_provenance": victim_provenance,
+            **({"victim_sha256": victim_digest} if victim_digest else {}), "expert": cfg.expert,
+            "steps": steps, "queries": victim.asked, "train_seconds": round(time.time() - started, 1),
+            "seed": cfg.seed, "final_episode_loss": collector.recent_loss()}
+        return save_timing_adversary(net, path) if timed(cfg) else save_adversary(net, path)
+
     while steps < cfg.steps:
         batch = collector.collect()
         advantages, remainder_target = advantages_gae(batch, cfg)
         ppo_update(net, optimizer, batch, advantages, remainder_target, cfg, gen)
         steps += cfg.rollout * cfg.n_envs
         log(collector.progress_line(steps, time.time() - started), flush=True)
+        if marks and steps >= marks[0]:
+            marks = [mark for mark in marks if mark > steps]
+            if steps < cfg.steps:  # the end is out:= itself
+                save(snapshot_path(out, steps))
     sims.close()
-    net.meta["provenance"] = {
-        **made_by, "victim": cfg.victim, "victim_provenance": victim_provenance,
-        **({"victim_sha256": victim_digest} if victim_digest else {}), "expert": cfg.expert,
-        "steps": steps, "queries": victim.asked, "train_seconds": round(time.time() - started, 1), "seed": cfg.seed,
-        "final_episode_loss": collector.recent_loss()}
-    out = (save_timing_adversary(net, cfg.out or f"runs/timing-adversary-{cfg.env}.pt") if timed(cfg)
-           else save_adversary(net, cfg.out or f"runs/adversary-{cfg.env}-{cfg.mode}.pt"))
+    out = save(out)
     log(json.dumps({"out": str(out), "steps": steps, "steps_per_s": round(steps / (time.time() - started), 1)}))
     return out
+
+
+def snapshot_path(out: Path, steps: int) -> Path:
+    """Where a training writing ``out`` keeps its state after ``steps`` steps (``snapshot_every:=``)."""
+    return out.with_name(f"{out.stem}-at-{steps}{out.suffix}")
+
+
+def snapshots_of(out: Path) -> list[Path]:
+    """The snapshots a training writing ``out`` kept, first first."""
+    return sorted(out.parent.glob(f"{out.stem}-at-*{out.suffix}"), key=lambda path: int(path.stem.rsplit("-", 1)[1]))
 
 
 def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mode: str | None = None) -> bool:

@@ -42,7 +42,7 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
                              probes the node answered);
                              for a name trained per mode, the file scored in each mode; per mode the pipeline's
                              files, the surrogate's questions and fidelity, the zoo screened (best first), ARIL-A's
-                             training questions
+                             training questions, the state of it the rows used and its states screened (best first)
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     surrogate-<mode>.pt      the black-box pipeline's copy of the policy (aril_ros.verdict); a rerun reuses it (same
                              policy, eps, horizon; for an external node: another node needs another out:= folder)
@@ -50,6 +50,10 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
                              (same policy, eps, horizon, steps)
     directed-<mode>.pt       the directed ARIL-A trained against the policy; a rerun reuses it (same policy, eps,
                              steps)
+    <adversary|directed>-<mode>-at-<steps>.pt
+                             the states those trainings kept before their end (aril_ros.verdict.SNAPSHOT_EVERY): the rows
+                             use whichever of them and the end took the most return from the policy on screening
+                             episodes
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
@@ -100,7 +104,7 @@ from .sweep import session
 from .timing import LEARNED_TIMING_ROW, TIMING_ROWS
 from .adversary import AdversaryConfig, ready_adversaries
 from .adversary_net import load_adversary
-from .verdict import SEARCH, BlackBoxAttacks, directed_pipeline, pipeline, relative, run_pipelines
+from .verdict import SEARCH, BlackBoxAttacks, Trained, directed_pipeline, pipeline, relative, run_pipelines
 
 
 @dataclass(frozen=True)
@@ -383,8 +387,9 @@ def cell(cfg: ScorecardConfig, budget: Budget, mode: str, attack: str, eps: floa
     SPSA's)."""
     iterations = {"spsa": {"k": budget.spsa_iterations, "samples": budget.spsa_samples},
                   "fd_fgsm": {"k": budget.fd_iterations}}.get(attack, {})
-    files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": made and made.adversary,
-             SEARCH_ROW: made and made.adversary, DIRECTED_ROW: made and made.directed and made.directed.file}
+    kept = made and made.adversary and made.adversary.kept
+    files = {"transfer": made and made.surrogate, "zoo": made and made.zoo, "aril_a": kept, SEARCH_ROW: kept,
+             DIRECTED_ROW: made and made.directed and made.directed.trained.kept}
     learned = row_attack(attack) == "aril_a"
     return EvalConfig(env=cfg.env, policy=policy or cfg.policy, expert=cfg.expert, mode=mode,
                       attack=row_attack(attack), eps=eps,
@@ -470,18 +475,23 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
     record = {}
     if made.surrogate:
         made_by = load_policy(made.surrogate).meta.provenance
-        trained = load_adversary(made.adversary).meta["provenance"]
         record |= {"surrogate": relative(made.surrogate), "surrogate_fidelity": made_by["fidelity"],
                    "surrogate_queries": made_by["queries"], "zoo": made.zoo and relative(made.zoo),
-                   "zoo_screened": made.screened, "adversary": relative(made.adversary),
-                   "adversary_steps": trained["steps"], "adversary_queries": trained["queries"]}
+                   "zoo_screened": made.screened, **training_record("adversary", made.adversary)}
     if made.directed:
         steered = made.directed
-        trained = load_adversary(steered.file).meta["provenance"]
-        record |= {"directed": relative(steered.file), "directed_steps": trained["steps"],
-                   "directed_queries": trained["queries"], "directed_zoo": steered.zoo and relative(steered.zoo),
+        record |= {**training_record("directed", steered.trained), "directed_zoo": steered.zoo and relative(steered.zoo),
                    "directed_zoo_screened": steered.screened, "directed_zoo_queries": steered.queries}
     return record
+
+
+def training_record(name: str, trained: Trained) -> dict:
+    """What scorecard.json keeps of a pipeline training ``name`` (adversary, directed): the state its row used, the
+    training's steps and questions, the step of the state kept, and its states' screening."""
+    end = load_adversary(trained.end).meta["provenance"]
+    return {name: relative(trained.kept), f"{name}_steps": end["steps"], f"{name}_queries": end["queries"],
+            f"{name}_kept_steps": load_adversary(trained.kept).meta["provenance"]["steps"],
+            f"{name}_states_screened": trained.screened, f"{name}_states_queries": trained.queries}
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

@@ -10,7 +10,9 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
    episodes; the one that takes the most return is the ``zoo`` attack;
 3. **train** ARIL-A against the policy itself, from the zoo's best (a warm start): PPO that asks the policy for its
    action on the true state (an input of the adversary) and on the perturbed one, two questions a step, and nothing
-   else: ``adversary-<mode>.pt``, the ``aril_a`` attack. An external node answers the 16 simulators' rows of a
+   else: ``adversary-<mode>.pt``, which keeps a state every :data:`SNAPSHOT_EVERY` steps
+   (``adversary-<mode>-at-<steps>.pt``); the one of them that takes the most return from the policy on screening
+   episodes is the ``aril_a`` attack. An external node answers the 16 simulators' rows of a
    question in one message (probe batches): the training ran at about half the engine's speed (3,994 against 7,549
    steps/s, HalfCheetah physical), where one probe a message had kept it at ~650;
 4. **search** at run time: that adversary proposes, the policy is asked on :data:`SEARCH` candidates a step and
@@ -19,11 +21,12 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
    (PA-AD's director, a direction in the policy's action space, and an actor that asks the policy for its action's
    slope along each perturbed entry, two questions an entry, and takes the corner of the box that moves the action
    furthest along it) trained against the policy itself, from the bundled directed ARIL-A that took the most return
-   from the policy on screening episodes (none trained against this very policy): ``directed-<mode>.pt``, the
-   ``aril_a_directed`` attack.
+   from the policy on screening episodes (none trained against this very policy): ``directed-<mode>.pt``, whose
+   state that takes the most return from the policy on screening episodes (as in step 3) is the ``aril_a_directed``
+   attack.
 
 The policy is asked for actions only: in step 1 (the surrogate's questions), steps 3 and 5 (the trainings', which
-the adversary files count), by the adversaries that take its action as an input (one question a step), by the
+the adversary files count, and their states' screenings, which the records count), by the adversaries that take its action as an input (one question a step), by the
 search and by the directed actor; never for its weights. For an external node every question is a message to the
 node and back.
 """
@@ -40,7 +43,7 @@ import numpy as np
 
 from . import plugins, seeds
 from .args import arg
-from .adversary import AdversaryConfig, ready_adversaries
+from .adversary import AdversaryConfig, ready_adversaries, snapshots_of
 from .adversary_net import load_adversary
 from .attacks import LearnedAttack
 from .envs import HORIZON, layout_of
@@ -56,10 +59,10 @@ from .sweep import Produced, Shipped, digest_of, run_tasks, shipped
 SEARCH = 8
 """Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
 DAgger sensory 8 took 49% of the return where none took 39% (results/aril_a_tuning.md, issue 38)."""
-PIPELINE = 4
+PIPELINE = 5
 """The pipeline's version in its record: files a pipeline of another version made are made again (2: the zoo's best
 may take the trained ARIL-A's place; 3: the surrogate fitted to the policy's variation inside the box too; 4: ARIL-A
-trained against the policy itself, the surrogate fitted once)."""
+trained against the policy itself, the surrogate fitted once; 5: the strongest of ARIL-A's states kept)."""
 SCREEN_EPISODES = 10
 """Episodes per zoo member in the screening (against the surrogate, so they cost no question to the policy): with 3,
 HalfCheetah DAgger's screening picked a member that took 17% of its return where the one 10 pick took 39%
@@ -70,15 +73,42 @@ DIRECTED_ZOO = (DATA_DIR / "directed-adversary",)
 against the policy itself (a director's direction is in the policy's action space, which a copy's errors would
 bend): on HalfCheetah DR and ARIL sensory, DAgger's directed ARIL-A trained 500k steps more against the learner took
 -34.4% and -11.3% where 500k from fresh weights took -30.9% and -7.3% (results/aril_a_tuning.md, issue 38)."""
-DIRECTED = 1
-"""The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again."""
+DIRECTED = 2
+"""The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again
+(2: the strongest of the training's states kept)."""
+SNAPSHOT_EVERY = 250_000
+"""Steps between the states a pipeline training keeps before its end (the quick budget's 500k steps: one and the
+end; the full budget's 2M: seven and the end): the row uses whichever of them took the most return from the policy on
+:data:`STATE_EPISODES` screening episodes. An adversary's objective, the policy's disagreement with the expert, is not
+the return it takes: on Ant DAgger sensory the directed ARIL-A took -55.1% of the return after 254k of its 2M steps,
+-42.2% at 504k (the quick budget's end) and -41.1% at its end, and the screening picked the 254k state (judged on env
+seeds 6600..6649; results/aril_a_tuning.md, issue 38)."""
+STATE_EPISODES = 30
+"""Screening episodes per state of a training: on Ant ARIL physical, 10 picked ARIL-A's state after 504k of 2M steps
+(-63.5% where the end took -69.4%, on env seeds 6600..6649), 30 the one after 1.75M (-68.3%): an Ant episode may end
+after a dozen steps or run to the horizon, and 10 of them rank the states by that."""
+
+
+@dataclass(frozen=True)
+class Trained:
+    """A pipeline training against the policy, and the state of it that its row uses."""
+
+    end: Path
+    """the training's last state, whose provenance counts every step and question of the training"""
+    kept: Path
+    """the state (one kept every :data:`SNAPSHOT_EVERY` steps, or the end) that took the most return from the policy on
+    screening episodes"""
+    screened: list[tuple[float, str]] = ()
+    """every state's mean return against the policy, best first"""
+    queries: int = 0
+    """the questions the screening of the states put to the policy"""
 
 
 @dataclass(frozen=True)
 class DirectedAttack:
     """What step 5 made for one mode: the directed ARIL-A and where it started."""
 
-    file: Path
+    trained: Trained
     zoo: Path | None = None
     """the bundled directed ARIL-A it was trained from (None: fresh weights)"""
     screened: list[tuple[float, str]] = ()
@@ -95,7 +125,7 @@ class BlackBoxAttacks:
     surrogate: Path | None = None
     zoo: Path | None = None
     """None also where the env has no bundled adversary (a new robot): no zoo row, ARIL-A from fresh weights"""
-    adversary: Path | None = None
+    adversary: Trained | None = None
     screened: list[tuple[float, str]] = ()
     """every zoo member's mean return against the surrogate, best first"""
     directed: DirectedAttack | None = None
@@ -172,7 +202,7 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {surrogate} and {adversary}")
-        return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), adversary,
+        return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), kept_before(adversary, made),
                                [tuple(s) for s in made["zoo_screened"]])
     cfg = SurrogateConfig()
     expert_file = shipped(for_task(expert, env_id))
@@ -193,11 +223,12 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     # against the policy itself, through its answers: an adversary trained against the surrogate learns the copy's
     # errors too (HalfCheetah DR physical, 500k steps: -76.9% against -98.6% trained against the policy, issue 38)
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
-                          else "", expert=expert, steps=steps, init=str(start) if start else "", out=str(adversary))
+                          else "", expert=expert, steps=steps, snapshot_every=SNAPSHOT_EVERY, init=str(start) if start else "",
+                          out=str(adversary))
+    trained = keep_strongest(adversary, victim_name, env_id, mode, eps, expert, domain, horizon, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened,
-                                  "files": {path.name: digest_of(path.read_bytes()) for path in (surrogate, adversary)}},
-                                 indent=1) + "\n")
-    return BlackBoxAttacks(surrogate, zoo, adversary, screened)
+                                  **kept_record(trained), "files": files_record(surrogate, trained)}, indent=1) + "\n")
+    return BlackBoxAttacks(surrogate, zoo, trained, screened)
 
 
 def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
@@ -214,8 +245,8 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {out}")
-        return DirectedAttack(out, made["zoo"] and Path(made["zoo"]), [tuple(s) for s in made["zoo_screened"]],
-                              made["queries"])
+        return DirectedAttack(kept_before(out, made), made["zoo"] and Path(made["zoo"]),
+                              [tuple(s) for s in made["zoo_screened"]], made["queries"])
     members = zoo_members(env_id, mode, victim_digest(leave_out or victim_name, env_id, mode), DIRECTED_ZOO)
     returns, queries = [], 0
     if members:
@@ -230,11 +261,46 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
                                  f"({len(screened)} screened, mean return {screened[0][0]:.1f}, {queries:,} questions)"
                                  if zoo else f"no bundled directed ARIL-A of {env_id} {mode}: from fresh weights"))
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
-                          else "", expert=expert, steps=steps, policy="directed", init=str(start) if start else "",
-                          out=str(out))
+                          else "", expert=expert, steps=steps, policy="directed", snapshot_every=SNAPSHOT_EVERY,
+                          init=str(start) if start else "", out=str(out))
+    trained = keep_strongest(out, victim_name, env_id, mode, eps, expert, domain, horizon, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "queries": queries,
-                                  "files": {out.name: digest_of(out.read_bytes())}}, indent=1) + "\n")
-    return DirectedAttack(out, zoo, screened, queries)
+                                  **kept_record(trained), "files": files_record(trained)}, indent=1) + "\n")
+    return DirectedAttack(trained, zoo, screened, queries)
+
+
+def keep_strongest(end: Path, victim_name: str, env_id: str, mode: str, eps: float, expert: str, domain: str,
+                   horizon: int, log=print) -> Trained:
+    """The states of the training that wrote ``end`` (its snapshots and its end) screened against the policy itself
+    on :data:`STATE_EPISODES` screening episodes: the one that took the most return is the row's. Judged by return,
+    which the scorecard reports, where the training maximised the policy's disagreement with the expert."""
+    states = [*snapshots_of(end), end]
+    with answering(victim_name, env_id, mode, domain) as victim:
+        returns = screen_members(states, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
+                                 horizon, STATE_EPISODES)
+        queries = victim.asked
+    screened = sorted(zip(returns, map(relative, states)))
+    kept = states[returns.index(screened[0][0])]
+    log(f"[verdict] {mode}: of {end.name}'s {len(states)} states, {kept.name} took the most return from the policy "
+        f"(mean return {screened[0][0]:.1f}, {queries:,} questions)")
+    return Trained(end, kept, screened, queries)
+
+
+def kept_record(trained: Trained) -> dict:
+    """What a pipeline's record keeps of a training's states."""
+    return {"kept": trained.kept.name, "states_screened": trained.screened, "states_queries": trained.queries}
+
+
+def kept_before(end: Path, made: dict) -> Trained:
+    """The :class:`Trained` a pipeline's record ``made`` names for the training that wrote ``end``."""
+    return Trained(end, end.parent / made["kept"], [tuple(s) for s in made["states_screened"]], made["states_queries"])
+
+
+def files_record(*made: Path | Trained) -> dict:
+    """The digests of a pipeline's files (a training's: every state), by name, which a rerun checks."""
+    paths = [path for item in made for path in
+             ([*snapshots_of(item.end), item.end] if isinstance(item, Trained) else [item])]
+    return {path.name: digest_of(path.read_bytes()) for path in paths}
 
 
 @dataclass(frozen=True)
@@ -329,16 +395,16 @@ def screen_zoo(members: list[Path], surrogate: Path, env_id: str, mode: str, eps
 
 
 def screen_members(members: list[Path], policy, env_id: str, mode: str, eps: float, expert_policy,
-                   horizon: int = HORIZON) -> list[float]:
-    """Each adversary's mean return against ``policy`` (a surrogate, or the policy's answers) on
-    :data:`SCREEN_EPISODES` screening episodes, scaled to ``eps``, in the members' order."""
+                   horizon: int = HORIZON, episodes: int = SCREEN_EPISODES) -> list[float]:
+    """Each adversary's mean return against ``policy`` (a surrogate, or the policy's answers) on ``episodes``
+    screening episodes, scaled to ``eps``, in the members' order."""
     scores = []
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
                                victim=policy, expert=expert_policy)
-        engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, SCREEN_EPISODES, horizon)
-        returns = np.zeros(SCREEN_EPISODES)
-        for step in engine.iter_steps(SCREEN_EPISODES, seeds.SCREENING):
+        engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, episodes, horizon)
+        returns = np.zeros(episodes)
+        for step in engine.iter_steps(episodes, seeds.SCREENING):
             returns[step.episodes] += step.reward
         engine.close()
         scores.append(round(float(returns.mean()), 3))

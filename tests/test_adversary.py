@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import torch
 
-from aril_ros.adversary import (AdversaryConfig, load_adversary, ready_adversary, save_adversary, train_adversary,
-                                trained_for)
+from aril_ros.adversary import (AdversaryConfig, load_adversary, ready_adversary, save_adversary, snapshots_of,
+                                train_adversary, trained_for)
 from aril_ros.attacks import LearnedAttack, make_attack
 from tests.conftest import AnswersOnly
 from aril_ros.envs import layout_of
@@ -143,6 +143,26 @@ def test_training_can_start_from_an_adversary_file(swimmer_files, tmp_path):
                                          "not eps:=0.1 hidden:=64"):
         train_adversary(AdversaryConfig(**{**common, "eps": 0.1}, steps=0, init=str(first),
                                         out=str(tmp_path / "d.pt")), log=lambda *a, **k: None)
+
+
+def test_a_training_keeps_snapshots_equal_to_shorter_trainings(swimmer_files, tmp_path):
+    """snapshot_every:=400 over 6 updates of 200 steps keeps the states after 2 and 4 updates, each the very weights (and the questions
+    counted so far) of a training that stopped there; another training writing the same file drops them."""
+    victim, expert = swimmer_files
+    common = dict(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), n_envs=4, rollout=50, seed=1)
+    out = tmp_path / "a.pt"
+    train_adversary(AdversaryConfig(**common, steps=1200, snapshot_every=400, out=str(out)), log=lambda *a, **k: None)
+    kept = snapshots_of(out)
+    assert [path.name for path in kept] == ["a-at-400.pt", "a-at-800.pt"]
+    for path, steps in zip(kept, (400, 800)):
+        shorter = train_adversary(AdversaryConfig(**common, steps=steps, out=str(tmp_path / f"short-{steps}.pt")),
+                                  log=lambda *a, **k: None)
+        ours, theirs = load_adversary(path), load_adversary(shorter)
+        assert all(torch.equal(a, b) for a, b in zip(ours.state_dict().values(), theirs.state_dict().values()))
+        made, made_short = ours.meta["provenance"], theirs.meta["provenance"]
+        assert made["steps"] == made_short["steps"] == steps and made["queries"] == made_short["queries"]
+    train_adversary(AdversaryConfig(**common, steps=200, out=str(out)), log=lambda *a, **k: None)
+    assert snapshots_of(out) == []
 
 
 def test_query_time_search_applies_the_most_damaging_candidate(swimmer_files, tmp_path):

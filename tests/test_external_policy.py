@@ -342,8 +342,9 @@ def test_the_quick_budget_runs_its_rows_on_the_same_seeds_and_steps_on_no_probes
 def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_counted(another_architectures_card):
     """Every row of the black-box pipeline has its figure, and the node answered exactly what the scorecard says it
     was asked: each run's steps (the clean one's and the timing row's too), each cell's questions, and what each mode's
-    rows needed asked (after those two runs, before the first cell's): in physical mode the surrogate's and ARIL-A
-    training's questions, in sensory mode the directed zoo's screening's and the directed ARIL-A training's. The zoo's
+    rows needed asked (after those two runs, before the first cell's): in physical mode the surrogate's, ARIL-A
+    training's and its states' screening's questions, in sensory mode the directed zoo's screening's, the directed
+    ARIL-A training's and its states' screening's. The zoo's
     row asks as the ARIL-A row does, with another file, and SPSA^k's questions are counted in test_scorecard."""
     _, card, _, tags, _ = another_architectures_card
     cells = []
@@ -361,9 +362,9 @@ def test_a_policy_of_another_architecture_gets_a_verdict_with_every_question_cou
     assert "surrogate" not in sensory and "directed" not in physical  # what each mode's quick rows need, no more
     # in the order the node was asked (each connection's questions numbered from 0): the physical copy, the directed
     # zoo's screening (every member kept: no file to leave out), then the two trainings (workers:=1, one after the
-    # other)
+    # other) and the screenings of their states
     in_turn = [physical["surrogate_queries"], sensory["directed_zoo_queries"], physical["adversary_queries"],
-               sensory["directed_queries"]]
+               sensory["directed_queries"], physical["adversary_states_queries"], sensory["directed_states_queries"]]
     assert all(queries > 0 for queries in in_turn)
     asked = sum(in_turn)
     clean = card["modes"]["sensory"]["clean"]

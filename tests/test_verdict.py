@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import shutil
 from types import SimpleNamespace
 
@@ -82,26 +83,29 @@ def sha256(path) -> str:
 @pytest.mark.slow
 def test_the_pipeline_asks_the_policy_for_actions_alone_and_counts_every_question(pipeline):
     folder, made, boxes = pipeline
-    # the policy asked for the surrogate's questions, then by ARIL-A's training, and by nothing else: the zoo is
-    # screened against the surrogate
-    copy, training, directing = boxes
+    # the policy asked for the surrogate's questions, then by the two trainings and the screenings of their states,
+    # and by nothing else: the zoo is screened against the surrogate
+    copy, training, directing, keeping, keeping_directed = boxes
     surrogate = load_policy(made.surrogate).meta.provenance
     assert copy.asked == surrogate["queries"] > 0
     assert (surrogate["victim"], surrogate["mode"], surrogate["eps"], surrogate["horizon"]) == ("dagger", MODE, EPS,
                                                                                                HORIZON)
     # ARIL-A was trained against the policy's answers, counted in its file, from the zoo's strongest (the one at the
     # head of the screening)
-    trained = load_adversary(made.adversary).meta["provenance"]
+    trained = load_adversary(made.adversary.end).meta["provenance"]
     assert trained["victim_sha256"] == sha256(policy_file("dagger", ENV)) and trained["steps"] >= STEPS
     assert trained["queries"] == training.asked >= 2 * STEPS
     assert trained["settings"]["init"] == made.screened[0][1] == str(made.zoo)
     assert made.screened == sorted(made.screened)
-    assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary == folder / f"adversary-{MODE}.pt"
+    assert made.surrogate == folder / f"surrogate-{MODE}.pt" and made.adversary.end == folder / f"adversary-{MODE}.pt"
+    # one PPO update, no state before the end: the screening of its states ran the end alone, its questions counted
+    assert made.adversary.kept == folder / f"adversary-{MODE}.pt" and len(made.adversary.screened) == 1
+    assert made.adversary.queries == keeping.asked > 0 and made.directed.trained.queries == keeping_directed.asked > 0
     # the directed ARIL-A from fresh weights against the policy's answers: a training step asks for its action on the
     # true state, on the two points per perturbed entry the actor's slopes need, and on the perturbed state
-    directed = load_adversary(made.directed.file)
+    directed = load_adversary(made.directed.trained.end)
     trained = directed.meta["provenance"]
-    assert made.directed.file == folder / f"directed-{MODE}.pt" and directed.meta["policy"] == "directed"
+    assert made.directed.trained.kept == folder / f"directed-{MODE}.pt" and directed.meta["policy"] == "directed"
     assert trained["victim_sha256"] == sha256(policy_file("dagger", ENV)) and trained["settings"]["init"] == ""
     assert trained["queries"] == directing.asked >= (2 + 2 * N_POSITION) * STEPS
 
@@ -114,8 +118,8 @@ def test_each_black_box_attack_runs_against_a_policy_that_only_answers(pipeline,
     _, made, _ = pipeline
     policy, expert = resolve_policy("dagger", ENV), resolve_policy("expert", ENV)
     victim = AnswersOnly(policy)
-    files = {"transfer": made.surrogate, "zoo": made.zoo, DIRECTED_ROW: made.directed.file}
-    file = files.get(attack, made.adversary)
+    files = {"transfer": made.surrogate, "zoo": made.zoo, DIRECTED_ROW: made.directed.trained.kept}
+    file = files.get(attack, made.adversary.kept)
     chosen = make_attack("transfer" if attack == "transfer" else "aril_a", layout_of(ENV), EPS, victim=victim,
                          expert=expert, adversary=str(file), mode=MODE, rescale=True,
                          search=SEARCH if attack == "aril_a_search" else 0)
@@ -247,7 +251,7 @@ def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_f
     members = zoo_members(ENV, MODE, victim_digest("bc", ENV, MODE), verdict.DIRECTED_ZOO)
     assert [member for _, member in made.screened] == [verdict.relative(m) for m in members]  # DAgger's
     assert str(made.zoo) == verdict.relative(members[0]) and made.queries == box[0].asked > 0
-    trained = load_adversary(made.file).meta["provenance"]
+    trained = load_adversary(made.trained.end).meta["provenance"]
     assert trained["settings"]["init"] == str(made.zoo) and trained["victim"] == "bc"
     again = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
                                                              log=quiet, horizon=HORIZON)], quiet)[0]
@@ -258,17 +262,18 @@ def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_f
 def test_a_rerun_reuses_the_surrogate_and_the_adversary_and_another_eps_makes_new_ones(pipeline, tmp_path):
     folder, first, _ = pipeline
     rerun = shutil.copytree(folder, tmp_path / "rerun")  # copy2: the files keep their times
-    files = [rerun / first.surrogate.name, rerun / first.adversary.name, rerun / first.directed.file.name]
+    files = [rerun / first.surrogate.name, rerun / first.adversary.end.name, rerun / first.directed.trained.end.name]
     before = [(p.stat().st_mtime_ns, p.read_bytes()) for p in files]
     again, boxes = run_pipeline(rerun)
     assert boxes == [] and [(p.stat().st_mtime_ns, p.read_bytes()) for p in files] == before
     assert (again.zoo, again.screened) == (first.zoo, first.screened)
     other, boxes = run_pipeline(rerun, eps=0.2)
-    assert len(boxes) == 3 and all(box.asked > 0 for box in boxes)  # the policy asked again: a copy, two trainings
+    # the policy asked again: a copy, two trainings, the screenings of their states
+    assert len(boxes) == 5 and all(box.asked > 0 for box in boxes)
     assert load_policy(other.surrogate).meta.provenance["eps"] == 0.2
-    assert load_adversary(other.adversary).eps == load_adversary(other.directed.file).eps == 0.2
-    assert all(path.read_bytes() != old for path, (_, old) in zip((other.surrogate, other.adversary, other.directed.file),
-                                                                   before))
+    assert load_adversary(other.adversary.end).eps == load_adversary(other.directed.trained.end).eps == 0.2
+    assert all(path.read_bytes() != old for path, (_, old) in zip(
+        (other.surrogate, other.adversary.end, other.directed.trained.end), before))
 
 
 @pytest.mark.slow
@@ -280,13 +285,13 @@ def test_pipelines_side_by_side_make_the_files_each_makes_alone(pipeline, tmp_pa
         both = verdict.run_pipelines([verdict.pipeline("dagger", ENV, mode, eps, "expert", STEPS, tmp_path,
                                                        log=quiet, horizon=HORIZON)
                                       for mode, eps in ((MODE, EPS), ("physical", 0.005))], quiet, workers=2)
-    assert [made.adversary.name for made in both] == [f"adversary-{MODE}.pt", "adversary-physical.pt"]
+    assert [made.adversary.end.name for made in both] == [f"adversary-{MODE}.pt", "adversary-physical.pt"]
     # the same weights (their provenance has the times they were made)
-    for name, kind in ((alone.surrogate.name, "policy"), (alone.adversary.name, "adversary")):
+    for name, kind in ((alone.surrogate.name, "policy"), (alone.adversary.end.name, "adversary")):
         ours, theirs = (load_weights(path, kind)[1] for path in (tmp_path / name, folder / name))
         assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours), name
     assert both[0].screened == alone.screened
-    assert load_adversary(both[1].adversary).meta["provenance"]["settings"]["mode"] == "physical"
+    assert load_adversary(both[1].adversary.end).meta["provenance"]["settings"]["mode"] == "physical"
 
 
 def test_aril_fit_surrogate_writes_the_file_attack_transfer_runs_on(tmp_path, capsys):
@@ -322,7 +327,7 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
                             leave_out="dagger")
     screened = {member for _, member in made.screened}
     assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own, verdict.ZOO_FOLDERS)}
-    assert load_adversary(made.adversary).meta["provenance"]["victim"] == "ros"
+    assert load_adversary(made.adversary.end).meta["provenance"]["victim"] == "ros"
 
 
 class NodeStandIn(AnswersOnly):
@@ -345,10 +350,11 @@ class NodeStandIn(AnswersOnly):
 
 def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
                reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)",
-               policy: str = "dagger", pipeline: int | None = verdict.PIPELINE) -> dict:
+               policy: str = "dagger", pipeline: int | None = verdict.PIPELINE,
+               directed: int | None = verdict.DIRECTED) -> dict:
     """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop, the reference and
     the CPU they were scored on, the pipeline that made its files (None: a cell of before pipeline 4, which recorded
-    none)."""
+    none) and the directed step's version (None: its first, which cells did not record)."""
     from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
     figures = {"env": "HalfCheetah-v5", "policy": policy, "mode": mode, "budget": budget, "minutes": 1.0,
@@ -356,7 +362,7 @@ def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episo
                "reference": {"attack": "fgsm_k", "drop_pct": reference,
                              "drops": {name: {"drop_pct": reference / 2 if name != "fgsm_k" else reference}
                                        for name in ("fgsm_k", "bundled_aril_a", "bundled_directed")}}, "cpu": cpu,
-               **({"pipeline": pipeline} if pipeline else {})}
+               **({"pipeline": pipeline} if pipeline else {}), **({"directed": directed} if directed else {})}
     return figures if episodes is None else {**figures, "episodes": episodes}
 
 
@@ -443,7 +449,7 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     scored_cells = {("dagger", "sensory", "quick"): {"fd_fgsm": -45.0},
                     ("dagger", "sensory", "full"): {"fd_fgsm": -55.0}, ("dagger", "physical", "quick"): {"aril_a": -90.0},
                     ("bc", "physical", "quick"): {"aril_a": -70.0}, ("bc", "physical", "full"): {"aril_a": -66.0}}
-    elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)", "pipeline": None}
+    elsewhere = {"reference": -60.0, "cpu": "AMD EPYC (AVX2)", "pipeline": None, "directed": None}
     for (policy, mode, budget), drops in scored_cells.items():
         folder = cell_folder(cfg, env, policy, mode, budget)
         folder.mkdir(parents=True)
@@ -459,7 +465,8 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     assert lines[3].endswith("| -90.0% [-91.0, -89.0] (aril_a) | 1.80 | 1.0 | – | – | – | -50.0% (fgsm_k) |")
     assert lines[4].startswith("| HalfCheetah-v5 | bc | physical |")
     assert lines[4].endswith("| -70.0% [-71.0, -69.0] (aril_a) | 1.40 | 1.0 | -66.0% [-67.0, -65.0] (aril_a; ARIL-A "
-                             "trained against the surrogate) | 1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 | -50.0% (fgsm_k) |")
+                             "trained against the surrogate; directed step 1) | 1.10 (of -60.0%, AMD EPYC (AVX2)) | 1.0 "
+                             "| -50.0% (fgsm_k) |")
     full_alone = scored_rows(cfg, [(env, "bc", "physical")], ["full"])
     assert table(full_alone, ["full"]).splitlines()[2].endswith("| 1.10 | 1.0 | -60.0% (fgsm_k) |")
     assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
@@ -586,3 +593,30 @@ def test_benchmark_judges_a_cell_without_a_row_it_could_not_score_and_says_so():
     assert got["black_box_worst"] == "aril_a"
     page = table([{"full": got}], ["full"])
     assert f"(aril_a; without {DIRECTED_ROW})" in page and "-50.0% (fgsm_k; without bundled_directed) |" in page
+
+
+@pytest.mark.slow
+def test_a_pipeline_training_keeps_its_state_that_takes_the_most_from_the_policy(tmp_path):
+    """The states a training kept (its snapshots and its end) are screened against the policy's answers on screening
+    episodes, every question counted; the row gets the one with the lowest mean return, and a rerun's record names it
+    again."""
+    end = adversary.train_adversary(adversary.AdversaryConfig(
+        env=ENV, mode=MODE, eps=EPS, victim="dagger", steps=3 * STEPS, snapshot_every=STEPS, out=str(tmp_path / "a.pt")),
+        log=quiet)
+    states = [*adversary.snapshots_of(end), end]
+    assert [path.name for path in states] == [f"a-at-{STEPS}.pt", f"a-at-{2 * STEPS}.pt", "a.pt"]
+    box = []
+
+    def answers_only(policy):
+        box.append(AnswersOnly(policy))
+        return box[-1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(verdict, "Answers", answers_only)
+        trained = verdict.keep_strongest(end, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, quiet)
+    returns = verdict.screen_members(states, resolve_policy("dagger", ENV), ENV, MODE, EPS,
+                                     resolve_policy("expert", ENV), HORIZON, verdict.STATE_EPISODES)
+    assert trained.screened == sorted(zip(returns, map(verdict.relative, states)))
+    assert trained.end == end and trained.kept == states[int(np.argmin(returns))]
+    assert trained.queries == box[0].asked >= 3 * verdict.STATE_EPISODES  # a question a step at least
+    assert verdict.kept_before(end, json.loads(json.dumps(verdict.kept_record(trained)))) == trained

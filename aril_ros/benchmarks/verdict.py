@@ -37,7 +37,7 @@ from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, directed_adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
 from ..scorecard import BUDGETS, SURROGATE_ATTACKS, ScorecardConfig, policy_in, scorecard
-from ..verdict import PIPELINE
+from ..verdict import DIRECTED, PIPELINE
 
 BLACK_BOX_ROWS = ("random", "spsa", "fd_fgsm", "transfer", "zoo", "aril_a", "aril_a_search", DIRECTED_ROW)
 WITHIN = 0.95
@@ -194,6 +194,8 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
                          "its others")
     figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
     figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
+    if DIRECTED_ROW in missing:
+        figures["directed"] = DIRECTED
     figures["minutes"] = round(figures["minutes"] + minutes, 2)
     if references:
         ref = figures["reference"]
@@ -230,7 +232,8 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
     drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
-            "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE}
+            "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE,
+            "directed": DIRECTED}
 
 
 def verdict_drop(cell: dict) -> dict:
@@ -323,11 +326,13 @@ def lacking_note(cell: dict) -> str:
 
 def pipeline_note(cell: dict) -> str:
     """For a cell whose pipeline rows (:data:`aril_ros.scorecard.SURROGATE_ATTACKS`) an older pipeline made, which
-    one: cells record it since pipeline 4; those that record none had ARIL-A trained against the surrogate."""
+    one: cells record it since pipeline 4; those that record none had ARIL-A trained against the surrogate. Likewise
+    for its directed row, whose step cells record since its version 2 (:data:`aril_ros.verdict.DIRECTED`)."""
     made = cell.get("pipeline")
-    if made is None:
-        return "; ARIL-A trained against the surrogate"
-    return "" if made == PIPELINE else f"; pipeline {made}"
+    note = ("; ARIL-A trained against the surrogate" if made is None else
+            "" if made == PIPELINE else f"; pipeline {made}")
+    directed = cell.get("directed", 1)
+    return note + (f"; directed step {directed}" if DIRECTED_ROW in cell["drops"] and directed != DIRECTED else "")
 
 
 def ratio(cell: dict, first: dict) -> str:
