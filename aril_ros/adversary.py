@@ -177,7 +177,7 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
     started, steps = time.time(), 0
     out = Path(cfg.out or (f"runs/timing-adversary-{cfg.env}.pt" if timed(cfg) else
                            f"runs/adversary-{cfg.env}-{cfg.mode}.pt"))
-    marks = list(range(cfg.snapshot_every, cfg.steps, cfg.snapshot_every)) if cfg.snapshot_every else []
+    marks = snapshot_steps(cfg)
     for stale in snapshots_of(out):  # another training's, which a screening would take for this one's
         stale.unlink()
 
@@ -195,14 +195,21 @@ def train_against(cfg: AdversaryConfig, victim, log, victim_digest: str = "") ->
         ppo_update(net, optimizer, batch, advantages, remainder_target, cfg, gen)
         steps += cfg.rollout * cfg.n_envs
         log(collector.progress_line(steps, time.time() - started), flush=True)
-        if marks and steps >= marks[0]:
-            marks = [mark for mark in marks if mark > steps]
-            if steps < cfg.steps:  # the end is out:= itself
-                save(snapshot_path(out, steps))
+        if steps in marks:
+            save(snapshot_path(out, steps))
     sims.close()
     out = save(out)
     log(json.dumps({"out": str(out), "steps": steps, "steps_per_s": round(steps / (time.time() - started), 1)}))
     return out
+
+
+def snapshot_steps(cfg: AdversaryConfig) -> list[int]:
+    """The steps after which a training keeps its state (``snapshot_every:=``): the first update at or past each
+    multiple of it, but the end, which is ``out:=`` itself."""
+    update = cfg.rollout * cfg.n_envs
+    end = -(-cfg.steps // update) * update
+    marks = range(cfg.snapshot_every, cfg.steps, cfg.snapshot_every) if cfg.snapshot_every else ()
+    return sorted({-(-mark // update) * update for mark in marks} - {end})
 
 
 def snapshot_path(out: Path, steps: int) -> Path:
@@ -266,7 +273,7 @@ def ready_adversaries(wanted: list[AdversaryConfig], retrain: bool, log, workers
     inside the checkout is shown to it by its checkout-relative path (:func:`sweep.run_tasks`)."""
     todo = [cfg for cfg in wanted if retrain or not ready(cfg)]
     here = workers == 1 and not address
-    calls = [(_with_files_marked(cfg), log if here else None) for cfg in todo]
+    calls = [(*_with_files_marked(cfg), log if here else None) for cfg in todo]
     for _ in run_tasks(training_task, calls, workers, address, label="adversary trainings", log=log):
         pass
     return [Path(cfg.out) for cfg in wanted]
@@ -280,17 +287,24 @@ def ready(cfg: AdversaryConfig) -> bool:
     return trained_for(Path(cfg.out), cfg.eps, cfg.victim, cfg.env, cfg.mode)
 
 
-def _with_files_marked(cfg: AdversaryConfig) -> dict:
-    """``cfg``'s fields for a task: the files it reads marked to travel with it, the one it writes to come back."""
-    return {**asdict(cfg), "victim": shipped(for_task(cfg.victim, cfg.env, cfg.mode)),
-            "expert": shipped(for_task(cfg.expert, cfg.env)), "init": shipped(cfg.init), "out": Produced(Path(cfg.out))}
+def _with_files_marked(cfg: AdversaryConfig) -> tuple[dict, list]:
+    """``cfg``'s fields for a task: the files it reads marked to travel with it, the ones it writes (the adversary
+    and the states it keeps) to come back."""
+    return ({**asdict(cfg), "victim": shipped(for_task(cfg.victim, cfg.env, cfg.mode)),
+             "expert": shipped(for_task(cfg.expert, cfg.env)), "init": shipped(cfg.init), "out": Produced(Path(cfg.out))},
+            [Produced(snapshot_path(Path(cfg.out), steps)) for steps in snapshot_steps(cfg)])
 
 
-def training_task(settings: dict, log=None) -> Path:
-    """One adversary's training (a sweep task): AdversaryConfig's fields, a file given as a path; ``log`` only
-    in the calling process (a Ray worker's output is not the driver's)."""
+def training_task(settings: dict, states: list, log=None) -> Path:
+    """One adversary's training (a sweep task): AdversaryConfig's fields, a file given as a path, and where the
+    states it keeps go (their paths, which the training makes beside its ``out``: marked in the call so that they
+    come back too); ``log`` only in the calling process (a Ray worker's output is not the driver's)."""
     cfg = AdversaryConfig(**{k: str(v) if isinstance(v, Path) else v for k, v in settings.items()})
-    return train_adversary(cfg, log=log or print)
+    made = train_adversary(cfg, log=log or print)
+    kept = snapshots_of(made)
+    if [str(path) for path in kept] != [str(path) for path in states]:
+        raise RuntimeError(f"{made}: kept the states {[p.name for p in kept]}, not {[Path(p).name for p in states]}")
+    return made
 
 
 def timing_budget(cfg: AdversaryConfig) -> TimingBudget:

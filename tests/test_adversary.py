@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import torch
 
-from aril_ros.adversary import (AdversaryConfig, load_adversary, ready_adversary, save_adversary, snapshots_of,
-                                train_adversary, trained_for)
+from aril_ros.adversary import (AdversaryConfig, load_adversary, ready_adversaries, ready_adversary, save_adversary,
+                                snapshots_of, train_adversary, trained_for)
 from aril_ros.attacks import LearnedAttack, make_attack
-from tests.conftest import AnswersOnly
+from tests.conftest import AnswersOnly, local_ray
 from aril_ros.envs import layout_of
 from aril_ros.policy import PolicyFileError, save_policy
 from aril_ros.rollout import RolloutEngine
@@ -163,6 +163,25 @@ def test_a_training_keeps_snapshots_equal_to_shorter_trainings(swimmer_files, tm
         assert made["steps"] == made_short["steps"] == steps and made["queries"] == made_short["queries"]
     train_adversary(AdversaryConfig(**common, steps=200, out=str(out)), log=lambda *a, **k: None)
     assert snapshots_of(out) == []
+
+
+@pytest.mark.slow
+def test_the_states_a_training_keeps_come_back_from_its_sweep_task(swimmer_files, tmp_path, monkeypatch):
+    """A training run as a Ray task writes in a scratch folder of its own: the states it keeps come back beside its
+    file, as the file does (a relative out:=, as a scorecard gives it), the very weights of a training in this
+    process."""
+    from pathlib import Path
+    victim, expert = swimmer_files
+    monkeypatch.chdir(tmp_path)
+    cfg = AdversaryConfig(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), n_envs=4, rollout=50,
+                          seed=1, steps=1200, snapshot_every=400, out="made/a.pt")
+    with local_ray():
+        ready_adversaries([cfg], True, lambda *a, **k: None, workers=2)
+    here = train_adversary(AdversaryConfig(**{**cfg.__dict__, "out": "here/a.pt"}), log=lambda *a, **k: None)
+    for ours, theirs in zip(snapshots_of(Path("made/a.pt")), snapshots_of(here), strict=True):
+        assert ours.name == theirs.name and all(torch.equal(a, b) for a, b in zip(
+            load_adversary(ours).state_dict().values(), load_adversary(theirs).state_dict().values()))
+    assert [path.name for path in snapshots_of(here)] == ["a-at-400.pt", "a-at-800.pt"]
 
 
 def test_query_time_search_applies_the_most_damaging_candidate(swimmer_files, tmp_path):
