@@ -8,6 +8,7 @@ import dataclasses
 import hashlib
 import json
 import shutil
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import numpy as np
@@ -67,6 +68,21 @@ def run_pipeline(folder, eps: float = EPS):
             [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON),
              verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet)], quiet)
     return dataclasses.replace(made, directed=directed), boxes
+
+
+@contextmanager
+def answers_counted():
+    """The pipeline's black boxes, each seen through :class:`AnswersOnly` (its act alone, its questions counted): the
+    list of them, as they are made."""
+    box = []
+
+    def answers_only(policy):
+        box.append(AnswersOnly(policy))
+        return box[-1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(verdict, "Answers", answers_only)
+        yield box
 
 
 @pytest.fixture(scope="module")
@@ -238,14 +254,7 @@ def test_the_directed_zoo_leaves_out_the_directed_aril_a_trained_against_the_sco
 def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_from_the_policy(tmp_path):
     """Scoring BC, the directed zoo's members (DAgger's directed ARIL-A, BC's own left out) are screened against the
     policy's answers, counted, and the training starts from the strongest; a rerun makes nothing."""
-    box = []
-
-    def answers_only(policy):
-        box.append(AnswersOnly(policy))
-        return box[-1]
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(verdict, "Answers", answers_only)
+    with answers_counted() as box:
         made = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
                                                                 log=quiet, horizon=HORIZON)], quiet)[0]
     members = zoo_members(ENV, MODE, victim_digest("bc", ENV, MODE), verdict.DIRECTED_ZOO)
@@ -605,14 +614,7 @@ def test_a_pipeline_training_keeps_its_state_that_takes_the_most_from_the_policy
         log=quiet)
     states = [*adversary.snapshots_of(end), end]
     assert [path.name for path in states] == [f"a-at-{STEPS}.pt", f"a-at-{2 * STEPS}.pt", "a.pt"]
-    box = []
-
-    def answers_only(policy):
-        box.append(AnswersOnly(policy))
-        return box[-1]
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(verdict, "Answers", answers_only)
+    with answers_counted() as box:
         trained = verdict.keep_strongest(end, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, quiet)
     returns = verdict.screen_members(states, resolve_policy("dagger", ENV), ENV, MODE, EPS,
                                      resolve_policy("expert", ENV), HORIZON, verdict.STATE_EPISODES)
