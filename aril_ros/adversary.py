@@ -222,6 +222,11 @@ def snapshots_of(out: Path) -> list[Path]:
     return sorted(out.parent.glob(f"{out.stem}-at-*{out.suffix}"), key=lambda path: int(path.stem.rsplit("-", 1)[1]))
 
 
+def states_of(out: Path) -> list[Path]:
+    """Every state a training writing ``out`` left: its snapshots, then its end (``out`` itself)."""
+    return [*snapshots_of(out), out]
+
+
 def trained_for(adversary: Path, eps: float, victim: str = "", env: str = "", mode: str | None = None) -> bool:
     """Whether ``adversary`` exists, was trained for ``eps`` and, given a ``victim`` policy (a bundled name or a
     file), against that very policy. The victim file's sha256 at training time is kept in the adversary, so a
@@ -290,9 +295,10 @@ def ready(cfg: AdversaryConfig) -> bool:
 def _with_files_marked(cfg: AdversaryConfig) -> tuple[dict, list]:
     """``cfg``'s fields for a task: the files it reads marked to travel with it, the ones it writes (the adversary
     and the states it keeps) to come back."""
+    out = Path(cfg.out)
     return ({**asdict(cfg), "victim": shipped(for_task(cfg.victim, cfg.env, cfg.mode)),
-             "expert": shipped(for_task(cfg.expert, cfg.env)), "init": shipped(cfg.init), "out": Produced(Path(cfg.out))},
-            [Produced(snapshot_path(Path(cfg.out), steps)) for steps in snapshot_steps(cfg)])
+             "expert": shipped(for_task(cfg.expert, cfg.env)), "init": shipped(cfg.init), "out": Produced(out)},
+            [Produced(snapshot_path(out, steps)) for steps in snapshot_steps(cfg)])
 
 
 def training_task(settings: dict, states: list, log=None) -> Path:

@@ -51,9 +51,9 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
     directed-<mode>.pt       the directed ARIL-A trained against the policy; a rerun reuses it (same policy, eps,
                              steps)
     <adversary|directed>-<mode>-at-<steps>.pt
-                             the states those trainings kept before their end (aril_ros.verdict.SNAPSHOT_EVERY): the rows
-                             use whichever of them and the end took the most return from the policy on screening
-                             episodes
+                             the states those trainings kept before their end (aril_ros.verdict.SNAPSHOT_EVERY):
+                             the rows use whichever of them and the end took the most return from the policy on
+                             screening episodes
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
@@ -480,8 +480,9 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
                    "zoo_screened": made.screened, **training_record("adversary", made.adversary)}
     if made.directed:
         steered = made.directed
-        record |= {**training_record("directed", steered.trained), "directed_zoo": steered.zoo and relative(steered.zoo),
-                   "directed_zoo_screened": steered.screened, "directed_zoo_queries": steered.queries}
+        record |= {**training_record("directed", steered.trained),
+                   "directed_zoo": steered.zoo and relative(steered.zoo), "directed_zoo_screened": steered.screened,
+                   "directed_zoo_queries": steered.queries}
     return record
 
 

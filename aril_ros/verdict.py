@@ -26,9 +26,9 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
    attack.
 
 The policy is asked for actions only: in step 1 (the surrogate's questions), steps 3 and 5 (the trainings', which
-the adversary files count, and their states' screenings, which the records count), by the adversaries that take its action as an input (one question a step), by the
-search and by the directed actor; never for its weights. For an external node every question is a message to the
-node and back.
+the adversary files count, and their states' screenings, which the records count), by the adversaries that take its
+action as an input (one question a step), by the search and by the directed actor; never for its weights. For an
+external node every question is a message to the node and back.
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ import numpy as np
 
 from . import plugins, seeds
 from .args import arg
-from .adversary import AdversaryConfig, ready_adversaries, snapshots_of
+from .adversary import AdversaryConfig, ready_adversaries, states_of
 from .adversary_net import load_adversary
 from .attacks import LearnedAttack
 from .envs import HORIZON, layout_of
@@ -223,8 +223,8 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     # against the policy itself, through its answers: an adversary trained against the surrogate learns the copy's
     # errors too (HalfCheetah DR physical, 500k steps: -76.9% against -98.6% trained against the policy, issue 38)
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
-                          else "", expert=expert, steps=steps, snapshot_every=SNAPSHOT_EVERY, init=str(start) if start else "",
-                          out=str(adversary))
+                          else "", expert=expert, steps=steps, snapshot_every=SNAPSHOT_EVERY,
+                          init=str(start) if start else "", out=str(adversary))
     trained = keep_strongest(adversary, victim_name, env_id, mode, eps, expert, domain, horizon, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened,
                                   **kept_record(trained), "files": files_record(surrogate, trained)}, indent=1) + "\n")
@@ -248,12 +248,8 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
         return DirectedAttack(kept_before(out, made), made["zoo"] and Path(made["zoo"]),
                               [tuple(s) for s in made["zoo_screened"]], made["queries"])
     members = zoo_members(env_id, mode, victim_digest(leave_out or victim_name, env_id, mode), DIRECTED_ZOO)
-    returns, queries = [], 0
-    if members:
-        with answering(victim_name, env_id, mode, domain) as victim:
-            returns = screen_members(members, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
-                                     horizon)
-            queries = victim.asked
+    returns, queries = (screen_against_policy(members, victim_name, env_id, mode, eps, expert, domain, horizon)
+                        if members else ([], 0))
     screened = sorted(zip(returns, map(relative, members)))
     zoo = Path(screened[0][1]) if screened else None
     start = zoo if zoo and load_adversary(zoo).eps == eps else None
@@ -274,16 +270,24 @@ def keep_strongest(end: Path, victim_name: str, env_id: str, mode: str, eps: flo
     """The states of the training that wrote ``end`` (its snapshots and its end) screened against the policy itself
     on :data:`STATE_EPISODES` screening episodes: the one that took the most return is the row's. Judged by return,
     which the scorecard reports, where the training maximised the policy's disagreement with the expert."""
-    states = [*snapshots_of(end), end]
-    with answering(victim_name, env_id, mode, domain) as victim:
-        returns = screen_members(states, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
-                                 horizon, STATE_EPISODES)
-        queries = victim.asked
+    states = states_of(end)
+    returns, queries = screen_against_policy(states, victim_name, env_id, mode, eps, expert, domain, horizon,
+                                             STATE_EPISODES)
     screened = sorted(zip(returns, map(relative, states)))
     kept = states[returns.index(screened[0][0])]
     log(f"[verdict] {mode}: of {end.name}'s {len(states)} states, {kept.name} took the most return from the policy "
         f"(mean return {screened[0][0]:.1f}, {queries:,} questions)")
     return Trained(end, kept, screened, queries)
+
+
+def screen_against_policy(members: list[Path], victim_name: str, env_id: str, mode: str, eps: float, expert: str,
+                          domain: str, horizon: int, episodes: int = SCREEN_EPISODES) -> tuple[list[float], int]:
+    """:func:`screen_members` against the policy ``victim_name`` itself, connected for it (its answers alone), and
+    the questions that put to it."""
+    with answering(victim_name, env_id, mode, domain) as victim:
+        returns = screen_members(members, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
+                                 horizon, episodes)
+        return returns, victim.asked
 
 
 def kept_record(trained: Trained) -> dict:
@@ -298,8 +302,7 @@ def kept_before(end: Path, made: dict) -> Trained:
 
 def files_record(*made: Path | Trained) -> dict:
     """The digests of a pipeline's files (a training's: every state), by name, which a rerun checks."""
-    paths = [path for item in made for path in
-             ([*snapshots_of(item.end), item.end] if isinstance(item, Trained) else [item])]
+    paths = [path for item in made for path in (states_of(item.end) if isinstance(item, Trained) else [item])]
     return {path.name: digest_of(path.read_bytes()) for path in paths}
 
 

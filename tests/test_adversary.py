@@ -146,8 +146,9 @@ def test_training_can_start_from_an_adversary_file(swimmer_files, tmp_path):
 
 
 def test_a_training_keeps_snapshots_equal_to_shorter_trainings(swimmer_files, tmp_path):
-    """snapshot_every:=400 over 6 updates of 200 steps keeps the states after 2 and 4 updates, each the very weights (and the questions
-    counted so far) of a training that stopped there; another training writing the same file drops them."""
+    """snapshot_every:=400 over 6 updates of 200 steps keeps the states after 2 and 4 updates, each the very weights
+    (and the questions counted so far) of a training that stopped there; another training writing the same file drops
+    them."""
     victim, expert = swimmer_files
     common = dict(env="Swimmer-v5", eps=0.2, victim=str(victim), expert=str(expert), n_envs=4, rollout=50, seed=1)
     out = tmp_path / "a.pt"

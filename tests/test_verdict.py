@@ -610,8 +610,8 @@ def test_a_pipeline_training_keeps_its_state_that_takes_the_most_from_the_policy
     episodes, every question counted; the row gets the one with the lowest mean return, and a rerun's record names it
     again."""
     end = adversary.train_adversary(adversary.AdversaryConfig(
-        env=ENV, mode=MODE, eps=EPS, victim="dagger", steps=3 * STEPS, snapshot_every=STEPS, out=str(tmp_path / "a.pt")),
-        log=quiet)
+        env=ENV, mode=MODE, eps=EPS, victim="dagger", steps=3 * STEPS, snapshot_every=STEPS,
+        out=str(tmp_path / "a.pt")), log=quiet)
     states = [*adversary.snapshots_of(end), end]
     assert [path.name for path in states] == [f"a-at-{STEPS}.pt", f"a-at-{2 * STEPS}.pt", "a.pt"]
     with answers_counted() as box:

@@ -316,7 +316,7 @@ HOW_ATTACKS_ASK = (
 def pipeline_lines(mode_result: dict) -> list[str]:
     """The page's lines on a mode's black-box pipeline: the surrogate's questions and fidelity, the zoo's choice,
     ARIL-A's training, the directed ARIL-A's (of what the mode's rows needed)."""
-    directed = ([f"Directed ARIL-A: `{mode_result['directed']}`, {kept_state(mode_result, 'directed')} "
+    directed = ([f"Directed ARIL-A: `{mode_result['directed']}`, {kept_state(mode_result, 'directed')}, "
                  + (f"from `{mode_result['directed_zoo']}`, the strongest of "
                     f"{len(mode_result['directed_zoo_screened'])} against the policy "
                     f"({mode_result['directed_zoo_queries']:,} questions)." if mode_result["directed_zoo"]
@@ -330,7 +330,7 @@ def pipeline_lines(mode_result: dict) -> list[str]:
             f"{fidelity['local_r2']:.4f}); "
             + (f"zoo: `{mode_result['zoo']}`, the strongest of {len(mode_result['zoo_screened'])} against the "
                "surrogate; " if mode_result["zoo"] else "no bundled adversary for a zoo; ")
-            + f"ARIL-A: `{mode_result['adversary']}`, {kept_state(mode_result, 'adversary')[:-1]}.", "", *directed]
+            + f"ARIL-A: `{mode_result['adversary']}`, {kept_state(mode_result, 'adversary')}.", "", *directed]
 
 
 def kept_state(mode_result: dict, name: str) -> str:
@@ -340,7 +340,7 @@ def kept_state(mode_result: dict, name: str) -> str:
     return (f"the state after {mode_result[f'{name}_kept_steps']:,} of {mode_result[f'{name}_steps']:,} steps trained "
             f"against the policy ({mode_result[f'{name}_queries']:,} questions), the strongest of {states} "
             f"state{'s' if states != 1 else ''} against the policy ({mode_result[f'{name}_states_queries']:,} "
-            "questions),")
+            "questions)")
 
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
