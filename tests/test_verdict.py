@@ -481,6 +481,39 @@ def test_benchmark_table_holds_every_cell_scored_so_far_and_marks_a_budget_still
     assert "Rows needed in sensory" in needed(rows, ["quick", "full"])
 
 
+def test_benchmark_run_of_a_few_cells_writes_the_table_of_every_cell_in_its_folder(tmp_path, capsys):
+    """A run of Ant BC's quick cell rewrites the table with HalfCheetah's cells and the full budget scored earlier in
+    the same folder, in the order of the benchmark's defaults; a cell of other screening seeds stays out of it. An
+    unknown budget is refused by name before anything is scored."""
+    from aril_ros import seeds
+    from aril_ros.benchmarks import verdict as bench
+    cfg = bench.VerdictBenchConfig(out=str(tmp_path), episodes=20)
+    earlier = {("HalfCheetah-v5", "dagger", "physical", "quick", seeds.SCORECARD): -90.0,
+               ("HalfCheetah-v5", "dagger", "physical", "full", seeds.SCORECARD): -95.0,
+               ("Ant-v5", "bc", "sensory", "quick", seeds.SCORECARD): -40.0,
+               ("HalfCheetah-v5", "bc", "sensory", "quick", 6600): -30.0}
+    for (env, policy, mode, budget, seed), drop in earlier.items():
+        folder = bench.cell_folder(bench.VerdictBenchConfig(out=str(tmp_path), seed=seed), env, policy, mode, budget)
+        folder.mkdir(parents=True)
+        figures = {**bench_cell({"aril_a": drop, "fd_fgsm": drop}, budget=budget, mode=mode, episodes=20,
+                                policy=policy), "env": env}
+        (folder / "cell.json").write_text(json.dumps(figures))
+    bench.main([f"out:={tmp_path}", "episodes:=20", "envs:=Ant-v5", "policies:=bc", "modes:=sensory",
+                "budgets:=quick", "add_rows:=false"])
+    printed = capsys.readouterr().out
+    assert "HalfCheetah" not in printed.split("\n", 1)[1]  # it prints the cells it was asked for
+    lines = (tmp_path / "verdict.md").read_text().splitlines()
+    assert "| quick ratio |" in lines[0] and "| full ratio |" in lines[0]
+    assert lines[2].startswith("| HalfCheetah-v5 | dagger | physical |") and "-95.0%" in lines[2]
+    assert lines[3].startswith("| Ant-v5 | bc | sensory |") and lines[4] == ""
+    assert len(json.loads((tmp_path / "verdict.json").read_text())["cells"]) == 2
+    assert bench.table_cells(cfg, [], ["full"]) == ([("HalfCheetah-v5", "dagger", "physical"),
+                                                   ("Ant-v5", "bc", "sensory")], ["quick", "full"])
+    with pytest.raises(ValueError, match="unknown budget 'fast'"):
+        bench.main([f"out:={tmp_path / 'other'}", "budgets:=quick,fast"])
+    assert not (tmp_path / "other").exists()
+
+
 def test_benchmark_finds_the_fewest_rows_that_find_the_drop_of_every_row():
     """fewest_rows: the smallest set of rows whose worst finds WITHIN of every row's drop in each cell of the mode (of
     the reference's where every row finds more), the rows that ask least among as few; cells of the other mode do

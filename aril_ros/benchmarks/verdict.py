@@ -12,10 +12,11 @@ the budget's verdict is the worst of the rows the budget scores by default (the 
 full budget's every one but SPSA^k, and physical fd_fgsm), the worst of every row is kept beside it. The reference
 is the strongest of white-box FGSM^k on the file, the bundled ARIL-A trained against that very learner (1M steps;
 2M for HalfCheetah DAgger) and the bundled directed ARIL-A trained against it (1M steps), on the same episodes.
-Per cell it prints the black-box worst drop per budget, the reference drop, their ratio and the minutes the budget took, and writes every figure to ``<out>/verdict.json``
-and the table to ``<out>/verdict.md``. Each cell's scorecard folder is kept under ``<out>/cells/``: a rerun
-resumes from the cells already scored (a cell's figures are in its ``cell.json``, with the CPU they were scored on,
-its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
+Per cell it prints the black-box worst drop per budget, the reference drop, their ratio and the minutes the budget
+took, and writes every figure to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell
+scored in ``<out>`` so far (a run of a few cells leaves the others in the table). Each cell's scorecard folder is
+kept under ``<out>/cells/``: a rerun resumes from the cells already scored (a cell's figures are in its
+``cell.json``, with the CPU they were scored on, its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
 resumed on another CPU model, whose episodes differ from the same files, is judged against its own. Below the
 table, per mode, the fewest rows that find nearly every row's drop (or the reference's) in each cell
 (:func:`fewest_rows`): run on screening episodes (``seed:=6600 out:=results/verdict-screening``), it is how the quick
@@ -34,7 +35,7 @@ from .. import seeds
 from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
-from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, directed_adversary_path
+from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, check_name, directed_adversary_path
 from ..report.stats import episodes_to_pin, paired_drop
 from ..scorecard import BUDGETS, SURROGATE_ATTACKS, ScorecardConfig, policy_in, scorecard
 from ..verdict import DIRECTED, PIPELINE
@@ -351,7 +352,7 @@ def main(argv=None) -> None:
         return
     if cfg.episodes == 1:
         raise ValueError("episodes:=1: a paired interval needs at least 2 episodes per cell")
-    budgets, out = comma_list(cfg.budgets), Path(cfg.out)
+    budgets, out = [check_name("budget", b, tuple(BUDGETS)) for b in comma_list(cfg.budgets)], Path(cfg.out)
     grid = [(env, policy, mode) for env in comma_list(cfg.envs) for policy in comma_list(cfg.policies)
             for mode in comma_list(cfg.modes)]
     # first every cell scored before a row existed gets it: the table after each cell judges them all by today's rows
@@ -365,13 +366,34 @@ def main(argv=None) -> None:
             f"{c['reference']['drop_pct']:+.1f}% ({c['reference']['attack']}): ratio {c['ratio']:.2f}, "
             f"{c['minutes']:.1f} min"
             for b, c in cell.items()), flush=True)
-        # the table after every cell, of every cell of the grid scored so far (by this run or an earlier one): a run
-        # stopped midway leaves the whole of what was measured
-        rows = scored_rows(cfg, grid, budgets)
+        # the table after every cell, of every cell scored so far in out:= (by this run or an earlier one): a run
+        # stopped midway leaves the whole of what was measured, and a run of a few cells the table of them all
+        shown_grid, shown = table_cells(cfg, grid, budgets)
+        rows = scored_rows(cfg, shown_grid, shown)
         (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1) + "\n")
-        (out / "verdict.md").write_text(table(rows, budgets) + needed(rows, budgets))
+        (out / "verdict.md").write_text(table(rows, shown) + needed(rows, shown))
     rows = scored_rows(cfg, grid, budgets)
     print(table(rows, budgets) + needed(rows, budgets))
+
+
+def table_cells(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]],
+                budgets: list[str]) -> tuple[list[tuple[str, str, str]], list[str]]:
+    """The table's grid and budgets: the run's, and those of every cell already scored in ``out:=`` on its
+    ``seed:=`` (a run of Ant's cells keeps HalfCheetah's in the table), in the order of the benchmark's defaults."""
+    found = []
+    for done in sorted(Path(cfg.out).glob("cells/*/cell.json")):
+        figures = json.loads(done.read_text())
+        if cell_folder(cfg, *(figures[key] for key in ("env", "policy", "mode", "budget"))) == done.parent:
+            found.append(figures)  # a cell of another seed:= keeps its seed in its folder's name
+    defaults = VerdictBenchConfig()
+    orders = [comma_list(defaults.envs), comma_list(defaults.policies), comma_list(defaults.modes)]
+
+    def rank(cell: tuple[str, str, str]) -> tuple[int, ...]:  # one not in the defaults after those, as first seen
+        return tuple(order.index(value) if value in order else len(order) for order, value in zip(orders, cell))
+
+    cells = dict.fromkeys([*grid, *((f["env"], f["policy"], f["mode"]) for f in found)])
+    shown = dict.fromkeys([*budgets, *(f["budget"] for f in found)])  # a cell's budget is one of BUDGETS
+    return sorted(cells, key=rank), sorted(shown, key=list(BUDGETS).index)
 
 
 def scored_rows(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]], budgets: list[str]) -> list[dict]:
