@@ -16,11 +16,12 @@ Per cell it prints the black-box worst drop per budget, the reference drop, thei
 took, and writes every figure to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell
 scored in ``<out>`` so far (a run of a few cells leaves the others in the table). Each cell's scorecard folder is
 kept under ``<out>/cells/``: a rerun resumes from the cells already scored (a cell's figures are in its
-``cell.json``, with the CPU they were scored on, its progress with the seconds in its ``scorecard.log``). A budget's ratio is to the reference scored with it: a run
-resumed on another CPU model, whose episodes differ from the same files, is judged against its own. Below the
-table, per mode, the fewest rows that find nearly every row's drop (or the reference's) in each cell
-(:func:`fewest_rows`): run on screening episodes (``seed:=6600 out:=results/verdict-screening``), it is how the quick
-budget's rows are chosen, never on the scorecard's own episodes.
+``cell.json``, with the CPU they were scored on, its progress with the seconds in its ``scorecard.log``). A
+budget's ratio is to the reference scored with it: a run resumed on another CPU model, whose episodes differ from
+the same files, is judged against its own. Below the table, per mode, the fewest rows that find nearly every row's
+drop (or the reference's) in each cell (:func:`fewest_rows`): run on screening episodes (``seed:=6600
+out:=results/verdict-screening``), it is how the quick budget's rows are chosen, never on the scorecard's own
+episodes.
 """
 from __future__ import annotations
 
@@ -368,10 +369,10 @@ def main(argv=None) -> None:
             for b, c in cell.items()), flush=True)
         # the table after every cell, of every cell scored so far in out:= (by this run or an earlier one): a run
         # stopped midway leaves the whole of what was measured, and a run of a few cells the table of them all
-        shown_grid, shown = table_cells(cfg, grid, budgets)
-        rows = scored_rows(cfg, shown_grid, shown)
+        table_grid, table_budgets = table_cells(cfg, grid, budgets)
+        rows = scored_rows(cfg, table_grid, table_budgets)
         (out / "verdict.json").write_text(json.dumps({"settings": asdict(cfg), "cells": rows}, indent=1) + "\n")
-        (out / "verdict.md").write_text(table(rows, shown) + needed(rows, shown))
+        (out / "verdict.md").write_text(table(rows, table_budgets) + needed(rows, table_budgets))
     rows = scored_rows(cfg, grid, budgets)
     print(table(rows, budgets) + needed(rows, budgets))
 
@@ -392,8 +393,8 @@ def table_cells(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]],
         return tuple(order.index(value) if value in order else len(order) for order, value in zip(orders, cell))
 
     cells = dict.fromkeys([*grid, *((f["env"], f["policy"], f["mode"]) for f in found)])
-    shown = dict.fromkeys([*budgets, *(f["budget"] for f in found)])  # a cell's budget is one of BUDGETS
-    return sorted(cells, key=rank), sorted(shown, key=list(BUDGETS).index)
+    scored_budgets = dict.fromkeys([*budgets, *(f["budget"] for f in found)])  # a cell's budget is one of BUDGETS
+    return sorted(cells, key=rank), sorted(scored_budgets, key=list(BUDGETS).index)
 
 
 def scored_rows(cfg: VerdictBenchConfig, grid: list[tuple[str, str, str]], budgets: list[str]) -> list[dict]:
