@@ -124,20 +124,21 @@ def test_the_full_budget_runs_fd_fgsm_at_fgsm_ks_iterations_and_spsa_at_its_own(
     assert cell(cfg, BUDGETS["quick"], "sensory", "fd_fgsm", 0.04).k == 1
 
 
-def test_the_full_budget_scores_every_black_box_row_but_spsa_and_physical_fd_fgsm_unless_named():
-    """SPSA^k and, in physical mode, fd_fgsm are the costliest rows through the graph and found no more than the
-    others on screening episodes (scorecard.FULL_ROWS); a file's white-box rows stand beside them; attacks:= names
-    any row back."""
+def test_the_full_budget_scores_the_rows_chosen_on_screening_episodes_unless_named():
+    """The full budget scores the rows that took the most in some screening cell (scorecard.FULL_ROWS): in sensory
+    mode fd_fgsm and the directed ARIL-A, so that its pipeline fits no surrogate; a file's white-box rows stand
+    beside them; attacks:= names any row back."""
     from aril_ros.scorecard import BUDGETS, rows_of
     full = BUDGETS["full"]
     file = ScorecardConfig(policy="dagger", env="HalfCheetah-v5", budget="full")
     every = list(SCORED_ATTACKS)
-    assert rows_of(file, full, every, "sensory", None) == ["random", "fd_fgsm", "transfer", "zoo", "aril_a",
-                                                           "aril_a_search", "aril_a_directed", "fgsm", "fgsm_k"]
-    assert rows_of(file, full, every, "physical", None) == ["random", "transfer", "zoo", "aril_a", "aril_a_search",
-                                                            "aril_a_directed", "fgsm", "fgsm_k"]
-    named = dataclasses.replace(file, attacks="spsa,fd_fgsm")
-    assert rows_of(named, full, ["spsa", "fd_fgsm"], "physical", None) == ["spsa", "fd_fgsm"]
+    assert rows_of(file, full, every, "sensory", None) == ["fd_fgsm", "aril_a_directed", "fgsm", "fgsm_k"]
+    assert rows_of(file, full, every, "physical", None) == ["zoo", "aril_a", "aril_a_search", "aril_a_directed",
+                                                            "fgsm", "fgsm_k"]
+    assert set(BUDGETS["quick"].black_box["physical"]) <= set(full.black_box["physical"])
+    assert set(BUDGETS["quick"].black_box["sensory"]) <= set(full.black_box["sensory"])
+    named = dataclasses.replace(file, attacks="spsa,fd_fgsm,random")
+    assert rows_of(named, full, ["spsa", "fd_fgsm", "random"], "physical", None) == ["spsa", "fd_fgsm", "random"]
     assert "86 queries per step (where attacks:= names it)" in full.describe()
 
 

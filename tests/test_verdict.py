@@ -387,8 +387,9 @@ def test_benchmark_judges_a_cell_by_the_budget_rows_of_today():
     assert (cell["black_box_worst"], cell["black_box_drop_pct"]) == (strongest_scored, -60.0)
     assert cell["black_box_ci95_pct"] == [-61.0, -59.0] and cell["ratio"] == pytest.approx(60.0 / 50.0)
     assert (cell["worst_of_every_row"], cell["worst_of_every_row_drop_pct"]) == ("random", -90.0)
-    full = judged(bench_cell({"random": -90.0, strongest_scored: -60.0}, budget="full"))
-    assert full["black_box_worst"] == "random"  # the full budget scores every row
+    full_rows = BUDGETS["full"].black_box["physical"]
+    full = judged(bench_cell({"random": -90.0, full_rows[0]: -70.0, strongest_scored: -60.0}, budget="full"))
+    assert full["black_box_worst"] == full_rows[0]  # the full budget scores more rows, but not random either
 
 
 def test_benchmark_refuses_a_cell_of_other_episodes(tmp_path):

@@ -9,7 +9,7 @@ episodes at eps
 (scale 1; a cell whose verdict's interval comes out as wide as its drop, as Ant's can, is scored again on about as
 many episodes as narrow it, the count the scorecard's page names to a user, reusing what the first scoring trained);
 the budget's verdict is the worst of the rows the budget scores by default (the quick budget's few; the
-full budget's every one but SPSA^k, and physical fd_fgsm), the worst of every row is kept beside it. The reference
+full budget's more, :data:`~aril_ros.scorecard.FULL_ROWS`), the worst of every row is kept beside it. The reference
 is the strongest of white-box FGSM^k on the file, the bundled ARIL-A trained against that very learner (1M steps;
 2M for HalfCheetah DAgger) and the bundled directed ARIL-A trained against it (1M steps), on the same episodes.
 Per cell it prints the black-box worst drop per budget, the reference drop, their ratio and the minutes the budget
