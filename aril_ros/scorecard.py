@@ -176,21 +176,24 @@ surrogate, zoo or categorical ARIL-A. In physical mode it took more than ARIL-A 
 -83.3% against -70.2%, Ant ARIL -68.4% against -65.0%); the fewest rows there were the zoo's and ARIL-A's (ARIL-A
 trained against the surrogate in those cells; with pipeline 4, ARIL-A's alone: results/verdict-screening/pipeline4),
 and on pipeline 4's 8 physical screening cells, with the directed row as the pipeline makes it, ARIL-A's alone (the
-directed row took at most 2.2 points more, Ant DR -68.6% against -66.4%), so in physical mode the directed row is the
-full budget's."""
-FULL_ROWS = {"sensory": ("fd_fgsm", DIRECTED_ROW), "physical": ("zoo", "aril_a", SEARCH_ROW, DIRECTED_ROW)}
+directed row took at most 2.2 points more, Ant DR -68.6% against -66.4%)."""
+FULL_ROWS = {"sensory": ("fd_fgsm", DIRECTED_ROW), "physical": ("zoo", "aril_a", SEARCH_ROW)}
 """The full budget's black-box rows, so that an external node's full verdict takes under an hour with the directed
-ARIL-A's 2M-step trainings: the quick budget's, with ARIL-A's zoo and search and the directed ARIL-A in physical mode.
-Chosen on screening episodes (results/verdict-screening, issue 38: its 16 quick cells, where every row was scored; its
-full ones predate the directed row): in each of the 8 sensory cells fd_fgsm or the directed ARIL-A took the most, but in
-HalfCheetah BC's (the zoo -105.2% against the directed ARIL-A's -104.1%), so a sensory verdict needs no surrogate, zoo
-or categorical ARIL-A; in physical mode ARIL-A, its search, the zoo or the directed ARIL-A took the most in every cell
-(Ant DAgger: the directed ARIL-A -83.3% against ARIL-A's -70.2%; Ant BC: search -97.7% against the zoo's -90.6%). Random
-noise and transfer led no cell in either mode; SPSA^k (at 5 x 8) led two sensory cells by at most 0.4 points over
-another row, and in physical mode a learned adversary's row took 13 to 79 points more than it; fd_fgsm took less than
-FGSM^k in physical mode on the DAgger learners (results/attacks_physical.md: -36.0% overall against -41.6%, ARIL-A
--82.8%). Through the graph each row is 20 runs of 1,000 steps, and the query rows are the costliest (on an external
-node, SPSA^k 283 s and fd_fgsm 537 s of a sensory verdict's 20 runs). ``attacks:=`` scores any other where wanted."""
+ARIL-A's 2M-step training: the quick budget's, with the zoo and ARIL-A + search in physical mode. Chosen on screening
+episodes (results/verdict-screening, issue 38: its 16 quick cells, where every row was scored; its full ones predate the
+directed row): in each of the 8 sensory cells fd_fgsm or the directed ARIL-A took the most, but in HalfCheetah BC's (the
+zoo -105.2% against the directed ARIL-A's -104.1%), so a sensory verdict needs no surrogate, zoo or categorical ARIL-A.
+In physical mode the zoo and ARIL-A find 0.95 of every row's drop (or of the reference's) in each cell, the fewest rows
+that do (Ant ARIL: the zoo -71.4%, ARIL-A -65.0%, the directed ARIL-A -68.4%), and search took the most in Ant BC's
+(-97.7% against the zoo's -90.6%); the directed ARIL-A took the most in Ant DAgger's (-83.3% against the zoo's -77.6%,
+whose reference was -77.7%) but its 2M-step training is a third beside the two modes' on 2 cores: against an external
+node the first two took 14 and 16 min before the third had a core, a verdict on course for over the hour (issue 38,
+2026-12-07, stopped). Random noise and transfer led no cell in either mode; SPSA^k (at 5 x 8) led two sensory cells by
+at most 0.4 points over another row, and in physical mode a learned adversary's row took 13 to 79 points more than it;
+fd_fgsm took less than FGSM^k in physical mode on the DAgger learners (results/attacks_physical.md: -36.0% overall
+against -41.6%, ARIL-A -82.8%). Through the graph each row is 20 runs of 1,000 steps, and the query rows are the
+costliest (on an external node, SPSA^k 283 s and fd_fgsm 537 s of a sensory verdict's 20 runs). ``attacks:=`` scores any
+other where wanted."""
 # quick: the verdict at eps alone, in minutes against an external node (ARIL-A trains against its answers, 16 rows a
 # message); full: the eps sweep, the attacks' own defaults (SPSA^k 5 x 8 where named, fd_fgsm FGSM^k's 10
 # iterations) and twice the paper's 1M steps
