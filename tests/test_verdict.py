@@ -629,13 +629,13 @@ def test_benchmark_judges_a_cell_without_a_row_it_could_not_score_and_says_so():
     """A cell scored before a budget row and a reference candidate existed, not given them (add_rows:=false, or on a
     CPU model that cannot add them here), is judged by what it has, and the table names what it lacks."""
     from aril_ros.benchmarks.verdict import judged, table
-    cell = bench_cell({"aril_a": -70.0}, budget="full")
+    cell = bench_cell({"fd_fgsm": -70.0}, budget="full", mode="sensory")
     del cell["drops"][DIRECTED_ROW], cell["reference"]["drops"]["bundled_directed"]
     got = judged(cell)
     assert DIRECTED_ROW not in got["budget_rows"] and got["rows_lacking"] == [DIRECTED_ROW]
-    assert got["black_box_worst"] == "aril_a"
+    assert got["black_box_worst"] == "fd_fgsm"
     page = table([{"full": got}], ["full"])
-    assert f"(aril_a; without {DIRECTED_ROW})" in page and "-50.0% (fgsm_k; without bundled_directed) |" in page
+    assert f"(fd_fgsm; without {DIRECTED_ROW})" in page and "-50.0% (fgsm_k; without bundled_directed) |" in page
 
 
 @pytest.mark.slow
