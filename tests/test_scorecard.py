@@ -125,9 +125,9 @@ def test_the_full_budget_runs_fd_fgsm_at_fgsm_ks_iterations_and_spsa_at_its_own(
 
 
 def test_the_full_budget_scores_the_rows_chosen_on_screening_episodes_unless_named():
-    """The full budget scores the rows that took the most in some screening cell (scorecard.FULL_ROWS): in sensory
-    mode fd_fgsm and the directed ARIL-A, so that its pipeline fits no surrogate; a file's white-box rows stand
-    beside them; attacks:= names any row back."""
+    """The full budget scores the rows chosen on screening episodes for an external node's hour
+    (scorecard.FULL_ROWS), the quick budget's among them: in sensory mode fd_fgsm and the directed ARIL-A, so that
+    its pipeline fits no surrogate; a file's white-box rows stand beside them; attacks:= names any row back."""
     from aril_ros.scorecard import BUDGETS, rows_of
     full = BUDGETS["full"]
     file = ScorecardConfig(policy="dagger", env="HalfCheetah-v5", budget="full")
