@@ -360,18 +360,21 @@ class NodeStandIn(AnswersOnly):
 def bench_cell(drops: dict, budget: str = "quick", mode: str = "physical", episodes: int | None = None,
                reference: float = -50.0, cpu: str = "Intel(R) Xeon(R) Processor (AVX512)",
                policy: str = "dagger", pipeline: int | None = verdict.PIPELINE,
-               directed: int | None = verdict.DIRECTED) -> dict:
+               directed: int | None = verdict.DIRECTED, fd_iterations: int | None = None) -> dict:
     """A verdict benchmark cell's figures as ``cell.json`` keeps them: every black-box row's drop, the reference and
     the CPU they were scored on, the pipeline that made its files (None: a cell of before pipeline 4, which recorded
-    none) and the directed step's version (None: its first, which cells did not record)."""
+    none), the directed step's version (None: its first, which cells did not record) and fd_fgsm's iterations (None:
+    the budget's of today)."""
     from aril_ros.benchmarks.verdict import BLACK_BOX_ROWS
+    from aril_ros.scorecard import BUDGETS
     drop = {row: drops.get(row, -1.0) for row in BLACK_BOX_ROWS}
     figures = {"env": "HalfCheetah-v5", "policy": policy, "mode": mode, "budget": budget, "minutes": 1.0,
                "clean": 5000.0, "drops": {row: {"drop_pct": d, "ci95_pct": [d - 1, d + 1]} for row, d in drop.items()},
                "reference": {"attack": "fgsm_k", "drop_pct": reference,
                              "drops": {name: {"drop_pct": reference / 2 if name != "fgsm_k" else reference}
                                        for name in ("fgsm_k", "bundled_aril_a", "bundled_directed")}}, "cpu": cpu,
-               **({"pipeline": pipeline} if pipeline else {}), **({"directed": directed} if directed else {})}
+               **({"pipeline": pipeline} if pipeline else {}), **({"directed": directed} if directed else {}),
+               "fd_iterations": fd_iterations or BUDGETS[budget].fd_iterations}
     return figures if episodes is None else {**figures, "episodes": episodes}
 
 
@@ -636,6 +639,46 @@ def test_benchmark_judges_a_cell_without_a_row_it_could_not_score_and_says_so():
     assert got["black_box_worst"] == "fd_fgsm"
     page = table([{"full": got}], ["full"])
     assert f"(fd_fgsm; without {DIRECTED_ROW})" in page and "-50.0% (fgsm_k; without bundled_directed) |" in page
+
+
+def test_benchmark_judges_a_cell_without_fd_fgsm_scored_as_the_budget_no_longer_does_and_scores_it_again(
+        tmp_path, monkeypatch):
+    """A cell whose fd_fgsm was scored at other iterations than its budget's of today (the full budget's were 10
+    until 2026-12-07) is judged without it, the table saying so, however much it took; add_rows scores it again at
+    today's iterations on the cell's own episodes (on its CPU model), and the cell records them."""
+    import json
+    from aril_ros.benchmarks import verdict as bench
+    from aril_ros.provenance import cpu
+    from aril_ros.scorecard import BUDGETS
+
+    today = BUDGETS["full"].fd_iterations
+    old = bench_cell({"fd_fgsm": -70.0, DIRECTED_ROW: -40.0}, budget="full", mode="sensory", episodes=4, cpu=cpu(),
+                     fd_iterations=today + 9)
+    old["clean"] = 5001.5
+    got = bench.judged(old)
+    assert (got["black_box_worst"], got["rows_lacking"]) == (DIRECTED_ROW, ["fd_fgsm"])
+    assert got["worst_of_every_row"] == "fd_fgsm"  # measured, kept beside the verdict
+    assert f"({DIRECTED_ROW}; without fd_fgsm at {today} iteration" in bench.table([{"full": got}], ["full"])
+
+    asked = []
+
+    def scoring(cfg, env, policy, mode, budget, episodes, attacks, folder):  # fd at today's iterations takes 60%
+        asked.append(attacks)
+        episode = lambda r: {"episodes": [{"return": r + i} for i in range(episodes)]}  # noqa: E731
+        return {"clean": {"mean_return": 5001.5, **episode(5000.0)}, "attacks": {"fd_fgsm": {"1.0": episode(2000.0)}}}, 0.5
+
+    monkeypatch.setattr(bench, "scorecard_result", scoring)
+    cfg, cell = bench.VerdictBenchConfig(out=str(tmp_path), episodes=4), ("HalfCheetah-v5", "dagger", "sensory", "full")
+    folder = bench.cell_folder(cfg, *cell)
+    folder.mkdir(parents=True)
+    (folder / "cell.json").write_text(json.dumps(old))
+    bench.add_missing_rows(cfg, *cell)
+    assert asked == [["fd_fgsm"]]
+    again = bench.score_cell(dataclasses.replace(cfg, widen=False), *cell)
+    assert again["fd_iterations"] == today and again["rows_lacking"] == []
+    assert (again["black_box_worst"], again["black_box_drop_pct"]) == ("fd_fgsm", pytest.approx(-3000.0 / 5001.5 * 100))
+    bench.add_missing_rows(cfg, *cell)
+    assert len(asked) == 1  # scored as today: not again
 
 
 @pytest.mark.slow

@@ -169,13 +169,14 @@ def score_cell(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget
 def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, budget: str) -> None:
     """A cell scored before a black-box row existed holds no figure for it, so neither its verdict nor
     :func:`fewest_rows` can count the row: the missing rows that need no file of the pipeline's first four steps
-    (``fd_fgsm`` came after the first cells, the directed ARIL-A after pipeline 4) are scored on the cell's own
-    episodes and added to its ``cell.json``, with the minutes they took; so are the reference's missing candidates (a
+    (``fd_fgsm`` came after the first cells, the directed ARIL-A after pipeline 4), and those it scored as the budget
+    no longer does (:func:`scored_as_today`), are scored on the cell's own episodes and put in its ``cell.json``, with
+    the minutes they took; so are the reference's missing candidates (a
     directed ARIL-A bundled since). Only on the CPU model the cell was scored on, whose clean episodes they must give
     again (its other rows are paired with those)."""
     done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
     figures = json.loads(done.read_text())
-    missing = [row for row in BLACK_BOX_ROWS if row not in figures["drops"] and row not in SURROGATE_ATTACKS]
+    missing = [row for row in BLACK_BOX_ROWS if row not in scored_as_today(figures) and row not in SURROGATE_ATTACKS]
     references = {name: path for name, path in bundled_references(env, policy, mode).items()
                   if name not in figures["reference"]["drops"]}
     if not missing and not references:
@@ -196,6 +197,7 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
                          "its others")
     figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
     figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
+    figures["fd_iterations"] = BUDGETS[budget].fd_iterations
     if DIRECTED_ROW in missing:
         figures["directed"] = DIRECTED
     figures["minutes"] = round(figures["minutes"] + minutes, 2)
@@ -235,7 +237,7 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
             "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE,
-            "directed": DIRECTED}
+            "directed": DIRECTED, "fd_iterations": BUDGETS[budget].fd_iterations}
 
 
 def verdict_drop(cell: dict) -> dict:
@@ -250,15 +252,23 @@ def judged(figures: dict) -> dict:
     beside it."""
     drops, budget = figures["drops"], BUDGETS[figures["budget"]]
     wanted = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
-    # a cell scored before a row existed, on a CPU model that cannot add it here, is judged without it (and says so)
-    rows = [row for row in wanted if row in drops]
+    # a cell scored before a row existed (or as the budget no longer scores it), on a CPU model that cannot score it
+    # here, is judged without it (and says so)
+    rows = [row for row in wanted if row in scored_as_today(figures)]
     worst = min(rows, key=lambda row: drops[row]["drop_pct"])
     worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
-    return {**figures, "budget_rows": rows, "rows_lacking": [row for row in wanted if row not in drops],
+    return {**figures, "budget_rows": rows, "rows_lacking": [row for row in wanted if row not in rows],
             "black_box_worst": worst,
             "black_box_drop_pct": drops[worst]["drop_pct"], "black_box_ci95_pct": drops[worst]["ci95_pct"],
             "ratio": drops[worst]["drop_pct"] / figures["reference"]["drop_pct"],
             "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
+
+
+def scored_as_today(figures: dict) -> list[str]:
+    """The rows of a cell scored as its budget scores them today: every one but an ``fd_fgsm`` scored at other
+    iterations (the full budget's were FGSM^k's 10 until 2026-12-07, which cells record as ``fd_iterations``)."""
+    fd_as_today = figures["fd_iterations"] == BUDGETS[figures["budget"]].fd_iterations
+    return [row for row in figures["drops"] if row != "fd_fgsm" or fd_as_today]
 
 
 def row_target(cell: dict, within: float = WITHIN) -> float:
@@ -322,8 +332,12 @@ def reference_note(cell: dict) -> str:
 
 
 def lacking_note(cell: dict) -> str:
-    """For a cell judged without some of its budget's rows (scored before they existed), which."""
-    return f"; without {', '.join(cell['rows_lacking'])}" if cell.get("rows_lacking") else ""
+    """For a cell judged without some of its budget's rows (scored before they existed, or as the budget no longer
+    scores them), which."""
+    iterations = BUDGETS[cell["budget"]].fd_iterations
+    lacking = [f"fd_fgsm at {iterations} iteration{'s' if iterations != 1 else ''}"
+               if row == "fd_fgsm" and row in cell["drops"] else row for row in cell.get("rows_lacking", [])]
+    return f"; without {', '.join(lacking)}" if lacking else ""
 
 
 def pipeline_note(cell: dict) -> str:
