@@ -645,7 +645,8 @@ def test_benchmark_judges_a_cell_without_fd_fgsm_scored_as_the_budget_no_longer_
         tmp_path, monkeypatch):
     """A cell whose fd_fgsm was scored at other iterations than its budget's of today (the full budget's were 10
     until 2026-12-07) is judged without it, the table saying so, however much it took; add_rows scores it again at
-    today's iterations on the cell's own episodes (on its CPU model), and the cell records them."""
+    today's iterations on the cell's own episodes (on its CPU model: on another it names the row as today's budget
+    scores it), and the cell records them."""
     import json
     from aril_ros.benchmarks import verdict as bench
     from aril_ros.provenance import cpu
@@ -671,6 +672,9 @@ def test_benchmark_judges_a_cell_without_fd_fgsm_scored_as_the_budget_no_longer_
     cfg, cell = bench.VerdictBenchConfig(out=str(tmp_path), episodes=4), ("HalfCheetah-v5", "dagger", "sensory", "full")
     folder = bench.cell_folder(cfg, *cell)
     folder.mkdir(parents=True)
+    (folder / "cell.json").write_text(json.dumps({**old, "cpu": "Another CPU (AVX2)"}))
+    with pytest.raises(ValueError, match=f"lacks fd_fgsm at {today} iteration.*was scored on Another CPU"):
+        bench.add_missing_rows(cfg, *cell)
     (folder / "cell.json").write_text(json.dumps(old))
     bench.add_missing_rows(cfg, *cell)
     assert asked == [["fd_fgsm"]]

@@ -182,7 +182,8 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
     if not missing and not references:
         return
     if figures.get("cpu", cpu()) != cpu():  # a cell that did not record it: its clean episodes tell (below)
-        raise ValueError(f"{done} lacks {', '.join(missing or references)}, and was scored on {figures['cpu']}: score "
+        raise ValueError(f"{done} lacks {', '.join([lacking_row(figures, row) for row in missing] or references)}, "
+                         f"and was scored on {figures['cpu']}: score "
                          f"them on that CPU model (this is {cpu()}), or the cell again (remove its folder)")
     if missing:
         result, minutes = scorecard_result(cfg, env, policy, mode, budget, figures["episodes"], missing,
@@ -334,10 +335,16 @@ def reference_note(cell: dict) -> str:
 def lacking_note(cell: dict) -> str:
     """For a cell judged without some of its budget's rows (scored before they existed, or as the budget no longer
     scores them), which."""
-    iterations = BUDGETS[cell["budget"]].fd_iterations
-    lacking = [f"fd_fgsm at {iterations} iteration{'s' if iterations != 1 else ''}"
-               if row == "fd_fgsm" and row in cell["drops"] else row for row in cell.get("rows_lacking", [])]
+    lacking = [lacking_row(cell, row) for row in cell.get("rows_lacking", [])]
     return f"; without {', '.join(lacking)}" if lacking else ""
+
+
+def lacking_row(cell: dict, row: str) -> str:
+    """A row a cell lacks, named as its budget scores it where the cell scored it otherwise (fd_fgsm's iterations)."""
+    if row != "fd_fgsm" or row not in cell["drops"]:
+        return row
+    iterations = BUDGETS[cell["budget"]].fd_iterations
+    return f"fd_fgsm at {iterations} iteration{'s' if iterations != 1 else ''}"
 
 
 def pipeline_note(cell: dict) -> str:
