@@ -176,7 +176,8 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
     again (its other rows are paired with those)."""
     done = cell_folder(cfg, env, policy, mode, budget) / "cell.json"
     figures = json.loads(done.read_text())
-    missing = [row for row in BLACK_BOX_ROWS if row not in scored_as_today(figures) and row not in SURROGATE_ATTACKS]
+    as_today = scored_as_today(figures)
+    missing = [row for row in BLACK_BOX_ROWS if row not in as_today and row not in SURROGATE_ATTACKS]
     references = {name: path for name, path in bundled_references(env, policy, mode).items()
                   if name not in figures["reference"]["drops"]}
     if not missing and not references:
@@ -255,7 +256,8 @@ def judged(figures: dict) -> dict:
     wanted = budget.black_box[figures["mode"]] if budget.black_box else BLACK_BOX_ROWS
     # a cell scored before a row existed (or as the budget no longer scores it), on a CPU model that cannot score it
     # here, is judged without it (and says so)
-    rows = [row for row in wanted if row in scored_as_today(figures)]
+    as_today = scored_as_today(figures)
+    rows = [row for row in wanted if row in as_today]
     worst = min(rows, key=lambda row: drops[row]["drop_pct"])
     worst_of_all = min(drops, key=lambda row: drops[row]["drop_pct"])
     return {**figures, "budget_rows": rows, "rows_lacking": [row for row in wanted if row not in rows],
