@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -321,21 +322,58 @@ def documented_node() -> str:
 
 
 def start_node(code: str, domain: int, tmp_path, *ros_args: str):
-    """``code`` as the user runs it: a file of its own, in the run's domain."""
+    """``code`` as the user runs it: a file of its own, in the run's domain. Its stderr goes to
+    ``my_policy.stderr`` beside it, with Python's fault handler on: what :func:`stop` reports of a node that hangs."""
     path = tmp_path / "my_policy.py"
     path.write_text(code)
-    return subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args], env=ros_env(domain),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with (tmp_path / "my_policy.stderr").open("w") as stderr:
+        node = subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args],
+                                env={**ros_env(domain), "PYTHONFAULTHANDLER": "1"}, stdout=subprocess.DEVNULL,
+                                stderr=stderr)
+    node.stderr_path = tmp_path / "my_policy.stderr"
+    return node
 
 
 def stop(node) -> None:
-    """A node a test started: SIGINT, as Ctrl-C stops it, and SIGKILL if it has not ended within 10 s."""
+    """A node a test started: SIGINT, as Ctrl-C stops it. One that has not ended within 10 s is stopped for good,
+    and ``node.hung`` says what it was doing (empty for a node that ended): its threads' kernel waits, their native
+    stacks where gdb is installed, and Python's tracebacks of them (SIGABRT, which the fault handler dumps to its
+    stderr). A test that asserts the node's clean exit reports it, so that a hang seen once names where it hung."""
+    node.hung = ""
     node.send_signal(signal.SIGINT)
+    try:
+        node.wait(10)
+        return
+    except subprocess.TimeoutExpired:
+        pass
+    node.hung = f"the node (pid {node.pid}) had not ended 10 s after SIGINT\n" + threads_of(node.pid)
+    node.send_signal(signal.SIGABRT)
     try:
         node.wait(10)
     except subprocess.TimeoutExpired:
         node.kill()
         node.wait()
+    node.hung += "its stderr:\n" + node.stderr_path.read_text(errors="replace")[-20_000:]
+
+
+def threads_of(pid: int) -> str:
+    """Each thread of the process ``pid``: its name, kernel state and wait channel; and, where gdb is installed,
+    every thread's native stack (what a thread waits on inside a library, where a Python traceback stops)."""
+    lines = []
+    for task in sorted(Path(f"/proc/{pid}/task").glob("*")):
+        try:
+            state = (task / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            lines.append(f"thread {task.name} {(task / 'comm').read_text().strip()}: state {state}, "
+                         f"waiting in {(task / 'wchan').read_text() or '-'}")
+        except OSError:  # the thread ended meanwhile
+            continue
+    if shutil.which("gdb"):
+        try:
+            lines.append(subprocess.run(["gdb", "-p", str(pid), "-batch", "-ex", "thread apply all bt"],
+                                        capture_output=True, text=True, timeout=60).stdout[-20_000:])
+        except subprocess.TimeoutExpired:
+            lines.append("gdb had not printed the stacks within 60 s")
+    return "\n".join(lines) + "\n"
 
 
 @contextlib.contextmanager

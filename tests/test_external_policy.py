@@ -34,7 +34,7 @@ def test_the_documented_node_is_a_runs_external_policy(mode, env_id, attack, lis
         summary = Orchestrator(cfg, log=lambda *a, **k: None).run()
     finally:
         stop(node)
-    assert node.returncode == 0  # a SIGINT is a clean stop for it
+    assert node.returncode == 0, node.hung  # a SIGINT is a clean stop for it
     assert processes_in_domain(domain) == []
     run = read_run(tmp_path / "run.mcap")
     assert summary["steps"] == len(run.tags) == 30
@@ -291,7 +291,8 @@ def another_architectures_card(tmp_path_factory):
                                          out=str(tmp_path / "card")), log=lambda *a, **k: None)
     finally:
         stop(node)
-    assert node.returncode == 0 and processes_in_domain(domain) == []
+    assert node.returncode == 0, node.hung
+    assert processes_in_domain(domain) == []
     namespace = {"np": np}
     exec(ANOTHER_ARCHITECTURE, namespace)
     card = json.loads((tmp_path / "card" / "scorecard.json").read_text())
