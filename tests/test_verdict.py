@@ -628,6 +628,47 @@ def test_benchmark_adds_a_reference_candidate_bundled_since_and_judges_the_cell_
     assert len(runs) == 2  # kept: not run again
 
 
+def test_benchmark_keeps_every_episode_and_gives_the_ratio_its_interval(tmp_path, monkeypatch):
+    """A scored cell keeps each episode's return (clean, every row, every reference candidate), and its ratio gets a
+    paired bootstrap interval over the episodes: it holds the ratio and narrows as the episodes grow; rows that take
+    what the reference takes, episode by episode, give [1, 1]; a cell scored before returns were kept shows its ratio
+    alone."""
+    from aril_ros.benchmarks import verdict
+
+    def cell_of(returns):
+        return {"mean_return": float(np.mean(returns)), "episodes": [{"return": float(r)} for r in returns]}
+
+    def scored(episodes: int, aril_a_loss=None) -> dict:
+        rng = np.random.default_rng(episodes)
+        clean = 5000 + 500 * rng.standard_normal(episodes)
+        reference_loss = 2000 * (1 + 0.5 * rng.standard_normal(episodes))
+        losses = {row: 100 * (1 + 0.5 * rng.standard_normal(episodes)) for row in (*verdict.BLACK_BOX_ROWS, "fgsm_k")}
+        losses["aril_a"] = reference_loss if aril_a_loss is None else aril_a_loss * (1 + 0.5 * rng.standard_normal(episodes))
+        monkeypatch.setattr(verdict, "scorecard_result", lambda *args: ({"clean": cell_of(clean), "attacks": {
+            row: {"1.0": cell_of(clean - loss)} for row, loss in losses.items()}}, 1.0))
+        monkeypatch.setattr(verdict, "bundled_references", lambda *args: {"bundled_aril_a": tmp_path / "bundled.pt"})
+        monkeypatch.setattr(verdict, "episode_cell", lambda cfg: cell_of(clean - reference_loss))
+        cfg = verdict.VerdictBenchConfig(out=str(tmp_path / str(episodes)), episodes=episodes)
+        figures = verdict.scorecard_figures(cfg, "HalfCheetah-v5", "dagger", "physical", "quick", episodes)
+        json.dumps(figures)  # as cell.json keeps it
+        assert figures["clean_returns"] == pytest.approx(clean)
+        assert figures["drops"]["aril_a"]["returns"] == pytest.approx(clean - losses["aril_a"])
+        assert figures["reference"]["drops"]["bundled_aril_a"]["returns"] == pytest.approx(clean - reference_loss)
+        return verdict.judged(figures)
+
+    few, many = scored(20, aril_a_loss=1800), scored(500, aril_a_loss=1800)
+    for cell in (few, many):
+        low, high = cell["ratio_ci95"]
+        assert cell["black_box_worst"] == "aril_a" and low < cell["ratio"] < high
+    assert many["ratio_ci95"][1] - many["ratio_ci95"][0] < (few["ratio_ci95"][1] - few["ratio_ci95"][0]) / 3
+    assert 0.8 < many["ratio_ci95"][0] and many["ratio_ci95"][1] < 1.0  # around 1800 / 2000
+    low, high = many["ratio_ci95"]
+    assert f"| {many['ratio']:.2f} [{low:.2f}, {high:.2f}] |" in verdict.table([{"quick": many}], ["quick"])
+    assert scored(20)["ratio_ci95"] == pytest.approx([1.0, 1.0])
+    old = verdict.judged(bench_cell({"aril_a": -40.0}))
+    assert old["ratio_ci95"] is None and "| 0.80 |" in verdict.table([{"quick": old}], ["quick"])
+
+
 def test_benchmark_judges_a_cell_without_a_row_it_could_not_score_and_says_so():
     """A cell scored before a budget row and a reference candidate existed, not given them (add_rows:=false, or on a
     CPU model that cannot add them here), is judged by what it has, and the table names what it lacks."""

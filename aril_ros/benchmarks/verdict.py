@@ -12,8 +12,8 @@ the budget's verdict is the worst of the rows the budget scores by default (the 
 full budget's more, :data:`~aril_ros.scorecard.FULL_ROWS`), the worst of every row is kept beside it. The reference
 is the strongest of white-box FGSM^k on the file, the bundled ARIL-A trained against that very learner (1M steps;
 2M for HalfCheetah DAgger) and the bundled directed ARIL-A trained against it (1M steps), on the same episodes.
-Per cell it prints the black-box worst drop per budget, the reference drop, their ratio and the minutes the budget
-took, and writes every figure to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell
+Per cell it prints the black-box worst drop per budget, the reference drop, their ratio (with its 95% interval over the
+cell's episodes: :func:`ratio_interval`) and the minutes the budget took, and writes every figure to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell
 scored in ``<out>`` so far (a run of a few cells leaves the others in the table). Each cell's scorecard folder is
 kept under ``<out>/cells/``: a rerun resumes from the cells already scored (a cell's figures are in its
 ``cell.json``, with the CPU they were scored on, its progress with the seconds in its ``scorecard.log``). A
@@ -32,6 +32,8 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .. import seeds
 from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
@@ -49,6 +51,8 @@ DEFAULT_EPISODES = 20
 EPISODES = {"Ant-v5": 50}
 """Episodes per cell where 20 leave the verdict's interval wider than its drop: Ant's clean episodes range from a
 dozen steps to the full horizon (issue 38: at 10 episodes its drops swung by 20-70 points)."""
+RATIO_RESAMPLES = 10_000
+"""Bootstrap resamples of a cell's episodes behind its ratio's interval (:func:`ratio_interval`)."""
 WIDEN_AT_MOST = 4
 """A cell whose verdict's interval is as wide as its drop is scored again on at most this many times its episodes:
 near no drop at all, no count of episodes narrows the interval below it."""
@@ -88,7 +92,7 @@ def reference(env: str, policy: str, mode: str, episodes: int, seed: int, result
     scorecard's clean cell."""
     drops, files = bundled_drops(env, policy, mode, episodes, seed, result["clean"],
                                  bundled_references(env, policy, mode))
-    return strongest_reference({"fgsm_k": paired_drop(result["clean"], result["attacks"]["fgsm_k"]["1.0"]), **drops},
+    return strongest_reference({"fgsm_k": paired(result["clean"], result["attacks"]["fgsm_k"]["1.0"]), **drops},
                                files)
 
 
@@ -104,8 +108,8 @@ def bundled_drops(env: str, policy: str, mode: str, episodes: int, seed: int, cl
                   adversaries: dict[str, Path]) -> tuple[dict, dict]:
     """Each named bundled adversary's paired drop from ``clean`` (the cell's clean episodes), ``policy`` in ``mode``
     under it on the cell's episodes, and the files they ran, by the same names."""
-    drops = {name: paired_drop(clean, episode_cell(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a",
-                                                              attack_file=str(path), episodes=episodes, seed=seed)))
+    drops = {name: paired(clean, episode_cell(EvalConfig(env=env, policy=policy, mode=mode, attack="aril_a",
+                                                         attack_file=str(path), episodes=episodes, seed=seed)))
              for name, path in adversaries.items()}
     return drops, {name: portable(str(path)) for name, path in adversaries.items()}
 
@@ -114,6 +118,17 @@ def episode_cell(cfg: EvalConfig) -> dict:
     """``cfg``'s evaluation as a scorecard's cell holds it: the mean return and each episode's."""
     evaluated = evaluate(cfg)
     return {"mean_return": evaluated["mean_return"], "episodes": [{"return": r} for r in evaluated["returns"]]}
+
+
+def returns_of(cell: dict) -> list[float]:
+    """Each episode's return in a scorecard's cell, in the order of its env seeds."""
+    return [episode["return"] for episode in cell["episodes"]]
+
+
+def paired(clean: dict, attacked: dict) -> dict:
+    """The paired drop of ``attacked`` from ``clean`` (two cells of the same episodes), with the attacked episodes'
+    returns, which :func:`ratio_interval` resamples."""
+    return paired_drop(clean, attacked) | {"returns": returns_of(attacked)}
 
 
 def strongest_reference(drops: dict, files: dict) -> dict:
@@ -197,7 +212,8 @@ def add_missing_rows(cfg: VerdictBenchConfig, env: str, policy: str, mode: str, 
         raise ValueError(f"{done}: its clean episodes came out at {result['clean']['mean_return']:.3f} here, not "
                          f"{figures['clean']:.3f}: the rows {', '.join(missing or references)} would not pair with "
                          "its others")
-    figures["drops"] |= {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
+    figures["drops"] |= {row: paired(result["clean"], result["attacks"][row]["1.0"]) for row in missing}
+    figures.setdefault("clean_returns", returns_of(result["clean"]))
     figures["rows_added"] = figures.get("rows_added", {}) | {row: {"minutes": round(minutes, 2)} for row in missing}
     figures["fd_iterations"] = BUDGETS[budget].fd_iterations
     if DIRECTED_ROW in missing:
@@ -235,9 +251,9 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
     on every read."""
     result, minutes = scorecard_result(cfg, env, policy, mode, budget, episodes, [*BLACK_BOX_ROWS, "fgsm_k"],
                                        cell_folder(cfg, env, policy, mode, budget))
-    drops = {row: paired_drop(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
+    drops = {row: paired(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
-            "clean": result["clean"]["mean_return"], "drops": drops, "episodes": episodes, "seed": cfg.seed,
+            "clean": result["clean"]["mean_return"], "clean_returns": returns_of(result["clean"]), "drops": drops, "episodes": episodes, "seed": cfg.seed,
             "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE,
             "directed": DIRECTED, "fd_iterations": BUDGETS[budget].fd_iterations}
 
@@ -264,7 +280,29 @@ def judged(figures: dict) -> dict:
             "black_box_worst": worst,
             "black_box_drop_pct": drops[worst]["drop_pct"], "black_box_ci95_pct": drops[worst]["ci95_pct"],
             "ratio": drops[worst]["drop_pct"] / figures["reference"]["drop_pct"],
+            "ratio_ci95": ratio_interval(figures, rows),
             "worst_of_every_row": worst_of_all, "worst_of_every_row_drop_pct": drops[worst_of_all]["drop_pct"]}
+
+
+def ratio_interval(figures: dict, rows: list[str]) -> list[float] | None:
+    """The 95% interval of a cell's ratio, its budget's verdict over its reference: a paired bootstrap over the
+    cell's episodes (percentiles of :data:`RATIO_RESAMPLES` resamples, seeded), each resample taking again the worst
+    of the budget's ``rows`` and the strongest reference candidate, as the cell's own figures were taken. Where it
+    holds the target ratio, the episodes cannot tell the verdict from it. None for a cell scored before its
+    episodes' returns were kept (or a row or candidate added to it since)."""
+    candidates = figures["reference"]["drops"].values()
+    if "clean_returns" not in figures or any("returns" not in figures["drops"][row] for row in rows) or any(
+            "returns" not in candidate for candidate in candidates):
+        return None
+    clean = np.asarray(figures["clean_returns"])
+    picks = np.random.default_rng(0).integers(0, len(clean), size=(RATIO_RESAMPLES, len(clean)))
+
+    def strongest(returns: list[list[float]]) -> np.ndarray:  # per resample, the largest mean loss of return
+        return np.max([(clean - np.asarray(r))[picks].mean(axis=1) for r in returns], axis=0)
+
+    ratios = (strongest([figures["drops"][row]["returns"] for row in rows])
+              / strongest([candidate["returns"] for candidate in candidates]))
+    return [float(q) for q in np.percentile(ratios, [2.5, 97.5])]
 
 
 def scored_as_today(figures: dict) -> list[str]:
@@ -361,10 +399,13 @@ def pipeline_note(cell: dict) -> str:
 
 
 def ratio(cell: dict, first: dict) -> str:
-    """A budget's black-box drop over the reference scored with it; its reference and CPU named where they are not
-    those of the row's first budget (whose reference the table's last column shows)."""
+    """A budget's black-box drop over the reference scored with it, and its 95% interval where the cell kept its
+    episodes' returns; its reference and CPU named where they are not those of the row's first budget (whose
+    reference the table's last column shows)."""
     ref = cell["reference"]["drop_pct"]
     text = f"{cell['ratio']:.2f}"
+    if cell.get("ratio_ci95"):
+        text += f" [{cell['ratio_ci95'][0]:.2f}, {cell['ratio_ci95'][1]:.2f}]"
     if (ref, cell.get("cpu")) != (first["reference"]["drop_pct"], first.get("cpu")):
         text += f" (of {ref:+.1f}%, {cell.get('cpu', 'CPU not recorded')})"
     return text
