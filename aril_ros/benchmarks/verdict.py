@@ -13,9 +13,10 @@ full budget's more, :data:`~aril_ros.scorecard.FULL_ROWS`), the worst of every r
 is the strongest of white-box FGSM^k on the file, the bundled ARIL-A trained against that very learner (1M steps;
 2M for HalfCheetah DAgger) and the bundled directed ARIL-A trained against it (1M steps), on the same episodes.
 Per cell it prints the black-box worst drop per budget, the reference drop, their ratio (with its 95% interval over the
-cell's episodes: :func:`ratio_interval`) and the minutes the budget took, and writes every figure to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell
-scored in ``<out>`` so far (a run of a few cells leaves the others in the table). Each cell's scorecard folder is
-kept under ``<out>/cells/``: a rerun resumes from the cells already scored (a cell's figures are in its
+cell's episodes: :func:`ratio_interval`) and the minutes the budget took, and writes every figure (each episode's
+return among them) to ``<out>/verdict.json`` and the table to ``<out>/verdict.md``, both of every cell scored in
+``<out>`` so far (a run of a few cells leaves the others in the table). Each cell's scorecard folder is kept under
+``<out>/cells/``: a rerun resumes from the cells already scored (a cell's figures are in its
 ``cell.json``, with the CPU they were scored on, its progress with the seconds in its ``scorecard.log``). A
 budget's ratio is to the reference scored with it: a run resumed on another CPU model, whose episodes differ from
 the same files, is judged against its own. Below the table, per mode, the fewest rows that find nearly every row's
@@ -253,7 +254,8 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
                                        cell_folder(cfg, env, policy, mode, budget))
     drops = {row: paired(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
-            "clean": result["clean"]["mean_return"], "clean_returns": returns_of(result["clean"]), "drops": drops, "episodes": episodes, "seed": cfg.seed,
+            "clean": result["clean"]["mean_return"], "clean_returns": returns_of(result["clean"]), "drops": drops,
+            "episodes": episodes, "seed": cfg.seed,
             "reference": reference(env, policy, mode, episodes, cfg.seed, result), "cpu": cpu(), "pipeline": PIPELINE,
             "directed": DIRECTED, "fd_iterations": BUDGETS[budget].fd_iterations}
 
@@ -288,8 +290,8 @@ def ratio_interval(figures: dict, rows: list[str]) -> list[float] | None:
     """The 95% interval of a cell's ratio, its budget's verdict over its reference: a paired bootstrap over the
     cell's episodes (percentiles of :data:`RATIO_RESAMPLES` resamples, seeded), each resample taking again the worst
     of the budget's ``rows`` and the strongest reference candidate, as the cell's own figures were taken. Where it
-    holds the target ratio, the episodes cannot tell the verdict from it. None for a cell scored before its
-    episodes' returns were kept (or a row or candidate added to it since)."""
+    holds the target ratio, the episodes cannot tell the verdict from it. None for a cell with a row or reference
+    candidate scored before cells kept their episodes' returns (2026-12-07)."""
     candidates = figures["reference"]["drops"].values()
     if "clean_returns" not in figures or any("returns" not in figures["drops"][row] for row in rows) or any(
             "returns" not in candidate for candidate in candidates):
