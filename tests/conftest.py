@@ -324,13 +324,13 @@ def documented_node() -> str:
 def start_node(code: str, domain: int, tmp_path, *ros_args: str):
     """``code`` as the user runs it: a file of its own, in the run's domain. Its stderr goes to
     ``my_policy.stderr`` beside it, with Python's fault handler on: what :func:`stop` reports of a node that hangs."""
-    path = tmp_path / "my_policy.py"
+    path, stderr_path = tmp_path / "my_policy.py", tmp_path / "my_policy.stderr"
     path.write_text(code)
-    with (tmp_path / "my_policy.stderr").open("w") as stderr:
+    with stderr_path.open("w") as stderr:
         node = subprocess.Popen([sys.executable, str(path), "--ros-args", *ros_args],
                                 env={**ros_env(domain), "PYTHONFAULTHANDLER": "1"}, stdout=subprocess.DEVNULL,
                                 stderr=stderr)
-    node.stderr_path = tmp_path / "my_policy.stderr"
+    node.stderr_path = stderr_path
     return node
 
 

@@ -643,7 +643,8 @@ def test_benchmark_keeps_every_episode_and_gives_the_ratio_its_interval(tmp_path
         clean = 5000 + 500 * rng.standard_normal(episodes)
         reference_loss = 2000 * (1 + 0.5 * rng.standard_normal(episodes))
         losses = {row: 100 * (1 + 0.5 * rng.standard_normal(episodes)) for row in (*verdict.BLACK_BOX_ROWS, "fgsm_k")}
-        losses["aril_a"] = reference_loss if aril_a_loss is None else aril_a_loss * (1 + 0.5 * rng.standard_normal(episodes))
+        losses["aril_a"] = (reference_loss if aril_a_loss is None
+                            else aril_a_loss * (1 + 0.5 * rng.standard_normal(episodes)))
         monkeypatch.setattr(verdict, "scorecard_result", lambda *args: ({"clean": cell_of(clean), "attacks": {
             row: {"1.0": cell_of(clean - loss)} for row, loss in losses.items()}}, 1.0))
         monkeypatch.setattr(verdict, "bundled_references", lambda *args: {"bundled_aril_a": tmp_path / "bundled.pt"})

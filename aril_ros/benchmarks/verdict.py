@@ -40,7 +40,7 @@ from ..args import arg, comma_list, module_config
 from ..evaluation import EvalConfig, evaluate
 from ..provenance import cpu, portable
 from ..registry import ATTACKED_MODES, DIRECTED_ROW, adversary_path, check_name, directed_adversary_path
-from ..report.stats import episodes_to_pin, paired_drop
+from ..report.stats import episodes_to_pin, paired_drop, returns_of
 from ..scorecard import BUDGETS, SURROGATE_ATTACKS, ScorecardConfig, policy_in, scorecard
 from ..verdict import DIRECTED, PIPELINE
 
@@ -119,11 +119,6 @@ def episode_cell(cfg: EvalConfig) -> dict:
     """``cfg``'s evaluation as a scorecard's cell holds it: the mean return and each episode's."""
     evaluated = evaluate(cfg)
     return {"mean_return": evaluated["mean_return"], "episodes": [{"return": r} for r in evaluated["returns"]]}
-
-
-def returns_of(cell: dict) -> list[float]:
-    """Each episode's return in a scorecard's cell, in the order of its env seeds."""
-    return [episode["return"] for episode in cell["episodes"]]
 
 
 def paired(clean: dict, attacked: dict) -> dict:

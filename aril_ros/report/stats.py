@@ -46,12 +46,18 @@ def worst_attack(cells: dict, among=THREATS) -> str | None:
     return min(present, key=lambda a: cells[a]["mean"]) if present else None
 
 
+def returns_of(cell: dict) -> list[float]:
+    """Each episode's return in a cell (a list of ``episodes`` with their ``return``), in the order of its env
+    seeds."""
+    return [episode["return"] for episode in cell["episodes"]]
+
+
 def paired_drop(clean: dict, attacked: dict) -> dict:
     """The drop of ``attacked`` from ``clean``, two cells of the same episodes (each a list of ``episodes`` with
     their ``return``): mean, and a Student-t 95% interval of the per-episode differences, in return and in % of
     the clean mean."""
-    clean_returns = np.array([e["return"] for e in clean["episodes"]])
-    diff = clean_returns - np.array([e["return"] for e in attacked["episodes"]])
+    clean_returns = np.array(returns_of(clean))
+    diff = clean_returns - np.array(returns_of(attacked))
     half = half_width(diff)
     base = abs(clean_returns.mean()) or 1.0
     mean = float(diff.mean())
