@@ -42,7 +42,8 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
                              probes the node answered);
                              for a name trained per mode, the file scored in each mode; per mode the pipeline's
                              files, the surrogate's questions and fidelity, the zoo screened (best first), ARIL-A's
-                             training questions, the state of it the rows used and its states screened (best first)
+                             training questions, the state of it the rows used and its states judged (best first;
+                             each state's return in each scored episode)
     sweep-<mode>.png         return against eps per attack, with the clean return and 95% intervals
     surrogate-<mode>.pt      the black-box pipeline's copy of the policy (aril_ros.verdict); a rerun reuses it (same
                              policy, eps, horizon; for an external node: another node needs another out:= folder)
@@ -53,7 +54,7 @@ Everything goes to one folder (``out:=``, default ``runs/scorecard-<env>-<policy
     <adversary|directed>-<mode>-at-<steps>.pt
                              the states those trainings kept before their end (aril_ros.verdict.SNAPSHOT_EVERY):
                              the rows use whichever of them and the end took the most return from the policy on
-                             screening episodes
+                             the scored episodes
     logs/<mode>-<attack>[-<file>][-search<K>]-<eps>.mcap
                              through the graph (policy:=external, via:=graph) with keep_logs:=true: each graph run's
                              log
@@ -460,11 +461,12 @@ def pipelines_for(cfg: ScorecardConfig, modes: list[str], eps: dict, budget: Bud
         + (f"; {', '.join(directed)}: a directed ARIL-A trained" if directed else "")
         + f" {budget.adversary_steps:,} steps against the policy's answers (eps "
         + ", ".join(f"{eps[m]:g}" for m in modes) + ")")
+    scored_on = (cfg.seed, budget.episodes)  # a training's states are judged on the very episodes its row scores
     pipelines = [pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
-                          budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
+                          budget.adversary_steps, out, scored_on, cfg.domain, log, cfg.horizon,
                           policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "") for mode in first]
     pipelines += [directed_pipeline(victim_of(cfg.policy, cfg.env, mode), cfg.env, mode, eps[mode], cfg.expert,
-                                    budget.adversary_steps, out, cfg.domain, log, cfg.horizon,
+                                    budget.adversary_steps, out, scored_on, cfg.domain, log, cfg.horizon,
                                     policy_in(cfg.leave_out, cfg.env, mode) if cfg.leave_out else "")
                   for mode in directed]
     with session(cfg.workers, cfg.address) if cfg.policy == "external" else nullcontext():
@@ -494,11 +496,13 @@ def pipeline_record(made: BlackBoxAttacks) -> dict:
 
 def training_record(name: str, trained: Trained) -> dict:
     """What scorecard.json keeps of a pipeline training ``name`` (adversary, directed): the state its row used, the
-    training's steps and questions, the step of the state kept, and its states' screening."""
+    training's steps and questions, the step of the state kept, and its states' judging on the scored episodes (each
+    state's return in each)."""
     end = load_adversary(trained.end).meta["provenance"]
     return {name: relative(trained.kept), f"{name}_steps": end["steps"], f"{name}_queries": end["queries"],
             f"{name}_kept_steps": load_adversary(trained.kept).meta["provenance"]["steps"],
-            f"{name}_states_screened": trained.screened, f"{name}_states_queries": trained.queries}
+            f"{name}_states_screened": trained.screened, f"{name}_states_queries": trained.queries,
+            f"{name}_states_returns": trained.returns}
 
 
 def victim_of(policy: str, env_id: str, mode: str) -> str:

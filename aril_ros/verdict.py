@@ -11,8 +11,8 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
 3. **train** ARIL-A against the policy itself, from the zoo's best (a warm start): PPO that asks the policy for its
    action on the true state (an input of the adversary) and on the perturbed one, two questions a step, and nothing
    else: ``adversary-<mode>.pt``, which keeps a state every :data:`SNAPSHOT_EVERY` steps
-   (``adversary-<mode>-at-<steps>.pt``); the one of them that takes the most return from the policy on screening
-   episodes is the ``aril_a`` attack. An external node answers the 16 simulators' rows of a
+   (``adversary-<mode>-at-<steps>.pt``); the one of them that takes the most return from the policy on the scored
+   episodes is the ``aril_a`` attack (:func:`keep_strongest`). An external node answers the 16 simulators' rows of a
    question in one message (probe batches): the training ran at about half the engine's speed (3,994 against 7,549
    steps/s, HalfCheetah physical), where one probe a message had kept it at ~650;
 4. **search** at run time: that adversary proposes, the policy is asked on :data:`SEARCH` candidates a step and
@@ -22,7 +22,7 @@ For one attacked mode, in five named steps (files in the scorecard's folder, whi
    slope along each perturbed entry, two questions an entry, and takes the corner of the box that moves the action
    furthest along it) trained against the policy itself, from the bundled directed ARIL-A that took the most return
    from the policy on screening episodes (none trained against this very policy): ``directed-<mode>.pt``, whose
-   state that takes the most return from the policy on screening episodes (as in step 3) is the ``aril_a_directed``
+   state that takes the most return from the policy on the scored episodes (as in step 3) is the ``aril_a_directed``
    attack.
 
 The policy is asked for actions only: in step 1 (the surrogate's questions), steps 3 and 5 (the trainings', which
@@ -36,7 +36,7 @@ import json
 import os
 from collections.abc import Callable
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +62,8 @@ DAgger sensory 8 took 49% of the return where none took 39% (results/aril_a_tuni
 PIPELINE = 5
 """The pipeline's version in its record: files a pipeline of another version made are made again (2: the zoo's best
 may take the trained ARIL-A's place; 3: the surrogate fitted to the policy's variation inside the box too; 4: ARIL-A
-trained against the policy itself, the surrogate fitted once; 5: the strongest of ARIL-A's states kept)."""
+trained against the policy itself, the surrogate fitted once; 5: the strongest of ARIL-A's states kept, on screening
+episodes; 6: on the scored episodes)."""
 SCREEN_EPISODES = 10
 """Episodes per zoo member in the screening (against the surrogate, so they cost no question to the policy): with 3,
 HalfCheetah DAgger's screening picked a member that took 17% of its return where the one 10 pick took 39%
@@ -75,18 +76,14 @@ bend): on HalfCheetah DR and ARIL sensory, DAgger's directed ARIL-A trained 500k
 -34.4% and -11.3% where 500k from fresh weights took -30.9% and -7.3% (results/aril_a_tuning.md, issue 38)."""
 DIRECTED = 2
 """The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again
-(2: the strongest of the training's states kept)."""
+(2: the strongest of the training's states kept, on screening episodes; 3: on the scored episodes)."""
 SNAPSHOT_EVERY = 250_000
 """Steps between the states a pipeline training keeps before its end (the quick budget's 500k steps: one and the
 end; the full budget's 2M: seven and the end): the row uses whichever of them took the most return from the policy on
-:data:`STATE_EPISODES` screening episodes. An adversary's objective, the policy's disagreement with the expert, is not
-the return it takes: on Ant DAgger sensory the directed ARIL-A took -55.1% of the return after 254k of its 2M steps,
--42.2% at 504k (the quick budget's end) and -41.1% at its end, and the screening picked the 254k state (judged on env
-seeds 6600..6649; results/aril_a_tuning.md, issue 38)."""
-STATE_EPISODES = 30
-"""Screening episodes per state of a training: on Ant ARIL physical, 10 picked ARIL-A's state after 504k of 2M steps
-(-63.5% where the end took -69.4%, on env seeds 6600..6649), 30 the one after 1.75M (-68.3%): an Ant episode may end
-after a dozen steps or run to the horizon, and 10 of them rank the states by that."""
+the scored episodes (:func:`keep_strongest`). An adversary's objective, the policy's disagreement with the expert, is
+not the return it takes: on Ant DAgger sensory the directed ARIL-A took -55.1% of the return after 254k of its 2M
+steps, -42.2% at 504k (the quick budget's end) and -41.1% at its end (on env seeds 6600..6649; results/aril_a_tuning.md,
+issue 38)."""
 
 
 @dataclass(frozen=True)
@@ -97,11 +94,16 @@ class Trained:
     """the training's last state, whose provenance counts every step and question of the training"""
     kept: Path
     """the state (one kept every :data:`SNAPSHOT_EVERY` steps, or the end) that took the most return from the policy on
-    screening episodes"""
+    the scored episodes"""
     screened: list[tuple[float, str]] = ()
     """every state's mean return against the policy, best first"""
     queries: int = 0
     """the questions the screening of the states put to the policy"""
+    returns: dict[str, list[float]] = field(default_factory=dict)
+    """every state's return in each scored episode, by file name: the row's figure is the best of them, so a verdict's
+    interval resamples them all (:func:`aril_ros.benchmarks.verdict.ratio_interval`)"""
+    scored_on: tuple[int, int] = (0, 0)
+    """the env seed of the first scored episode and their count: the episodes the states were judged on"""
 
 
 @dataclass(frozen=True)
@@ -183,13 +185,14 @@ def _offline(fn: Callable, call: tuple):
 
 
 def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-             domain: str = "", log=print, horizon: int = HORIZON, leave_out: str = ""):
+             scored_on: tuple[int, int], domain: str = "", log=print, horizon: int = HORIZON, leave_out: str = ""):
     """The pipeline for the policy ``victim_name`` (a file, a bundled name, or ``ros``: an external node in
     ``domain``) in ``mode`` at ``eps``, on episodes of ``horizon`` steps (the scored ones'); ARIL-A trained ``steps``
-    steps against it; the zoo leaves out the adversaries trained against ``victim_name``'s file, or for an external
+    steps against it, its states judged on the scored episodes, ``scored_on`` (the first one's env seed, their count);
+    the zoo leaves out the adversaries trained against ``victim_name``'s file, or for an external
     node against ``leave_out``'s (the file it serves, when it is one of ours: the verdict of a policy the testbed has
     never seen). Its record, ``pipeline-<mode>.json``, lets a rerun for the same policy, eps, horizon and steps find
-    the files and make nothing.
+    the files and make nothing (but judge the states again, on other scored episodes).
 
     A generator (run it with :func:`run_pipelines`): it yields each ARIL-A training it needs as an
     :class:`AdversaryConfig`, and each fit and screening as an :class:`Offline` job, and goes on once that is done
@@ -202,7 +205,9 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {surrogate} and {adversary}")
-        return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), kept_before(adversary, made),
+        trained = kept_on(adversary, made, record, victim_name, env_id, mode, eps, expert, domain, horizon, scored_on,
+                          log)
+        return BlackBoxAttacks(surrogate, made["zoo"] and Path(made["zoo"]), trained,
                                [tuple(s) for s in made["zoo_screened"]])
     cfg = SurrogateConfig()
     expert_file = shipped(for_task(expert, env_id))
@@ -225,19 +230,21 @@ def pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, 
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
                           else "", expert=expert, steps=steps, snapshot_every=SNAPSHOT_EVERY,
                           init=str(start) if start else "", out=str(adversary))
-    trained = keep_strongest(adversary, victim_name, env_id, mode, eps, expert, domain, horizon, log)
+    trained = keep_strongest(adversary, victim_name, env_id, mode, eps, expert, domain, horizon, scored_on, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened,
                                   **kept_record(trained), "files": files_record(surrogate, trained)}, indent=1) + "\n")
     return BlackBoxAttacks(surrogate, zoo, trained, screened)
 
 
 def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expert: str, steps: int, folder: Path,
-                      domain: str = "", log=print, horizon: int = HORIZON, leave_out: str = ""):
-    """Step 5 for the policy ``victim_name`` (as :func:`pipeline` takes it, ``leave_out`` too) in ``mode`` at
-    ``eps``: the bundled directed ARIL-As screened against the policy itself on :data:`SCREEN_EPISODES` screening
-    episodes of ``horizon`` steps (but any trained against it), and a directed ARIL-A trained ``steps`` steps against
-    it from the one that took the most return, ``directed-<mode>.pt``. Its record, ``directed-<mode>.json``, lets a
-    rerun for the same policy, eps, horizon and steps make nothing. A generator like :func:`pipeline` (run them
+                      scored_on: tuple[int, int], domain: str = "", log=print, horizon: int = HORIZON,
+                      leave_out: str = ""):
+    """Step 5 for the policy ``victim_name`` (as :func:`pipeline` takes it, ``leave_out`` and ``scored_on`` too) in
+    ``mode`` at ``eps``: the bundled directed ARIL-As screened against the policy itself on :data:`SCREEN_EPISODES`
+    screening episodes of ``horizon`` steps (but any trained against it), and a directed ARIL-A trained ``steps`` steps
+    against it from the one that took the most return, ``directed-<mode>.pt``. Its record, ``directed-<mode>.json``,
+    lets a rerun for the same policy, eps, horizon and steps make nothing (but judge the states again, on other scored
+    episodes). A generator like :func:`pipeline` (run them
     together with :func:`run_pipelines`): it yields the training, returns the :class:`DirectedAttack`."""
     out, record = folder / f"directed-{mode}.pt", folder / f"directed-{mode}.json"
     wanted = {"directed": DIRECTED, "victim": victim_name, "mode": mode, "eps": eps, "horizon": horizon,
@@ -245,8 +252,9 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
     made = made_before(record, wanted)
     if made:
         log(f"[verdict] {mode}: reusing {out}")
-        return DirectedAttack(kept_before(out, made), made["zoo"] and Path(made["zoo"]),
-                              [tuple(s) for s in made["zoo_screened"]], made["queries"])
+        trained = kept_on(out, made, record, victim_name, env_id, mode, eps, expert, domain, horizon, scored_on, log)
+        return DirectedAttack(trained, made["zoo"] and Path(made["zoo"]), [tuple(s) for s in made["zoo_screened"]],
+                              made["queries"])
     members = zoo_members(env_id, mode, victim_digest(leave_out or victim_name, env_id, mode), DIRECTED_ZOO)
     returns, queries = (screen_against_policy(members, victim_name, env_id, mode, eps, expert, domain, horizon)
                         if members else ([], 0))
@@ -259,45 +267,67 @@ def directed_pipeline(victim_name: str, env_id: str, mode: str, eps: float, expe
     yield AdversaryConfig(env=env_id, mode=mode, eps=eps, victim=victim_name, domain=domain if victim_name == "ros"
                           else "", expert=expert, steps=steps, policy="directed", snapshot_every=SNAPSHOT_EVERY,
                           init=str(start) if start else "", out=str(out))
-    trained = keep_strongest(out, victim_name, env_id, mode, eps, expert, domain, horizon, log)
+    trained = keep_strongest(out, victim_name, env_id, mode, eps, expert, domain, horizon, scored_on, log)
     record.write_text(json.dumps({**wanted, "zoo": zoo and relative(zoo), "zoo_screened": screened, "queries": queries,
                                   **kept_record(trained), "files": files_record(trained)}, indent=1) + "\n")
     return DirectedAttack(trained, zoo, screened, queries)
 
 
 def keep_strongest(end: Path, victim_name: str, env_id: str, mode: str, eps: float, expert: str, domain: str,
-                   horizon: int, log=print) -> Trained:
-    """The states of the training that wrote ``end`` (its snapshots and its end) screened against the policy itself
-    on :data:`STATE_EPISODES` screening episodes: the one that took the most return is the row's. Judged by return,
-    which the scorecard reports, where the training maximised the policy's disagreement with the expert."""
+                   horizon: int, scored_on: tuple[int, int], log=print) -> Trained:
+    """The states of the training that wrote ``end`` (its snapshots and its end) run against the policy itself on
+    the scored episodes, ``scored_on`` (the first one's env seed, their count): the one that took the most return is
+    the row's. Judged by return, which the scorecard reports, where the training maximised the policy's disagreement
+    with the expert; on the scored episodes, as the verdict judges its rows, because screening episodes could not
+    choose: on Ant ARIL physical, after 100 screening episodes the quick ARIL-A's two states were -95 +- 312 of return
+    apart, and on 100 fresh episodes one took -76.7% and the other -68.5% (results/aril_a_tuning.md, issue 38)."""
     states = states_of(end)
-    returns, queries = screen_against_policy(states, victim_name, env_id, mode, eps, expert, domain, horizon,
-                                             STATE_EPISODES)
+    with answering(victim_name, env_id, mode, domain) as victim:
+        episodes = episode_returns(states, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
+                                   horizon, scored_on[1], scored_on[0])
+        queries = victim.asked
+    returns = [round(float(np.mean(r)), 3) for r in episodes]
     screened = sorted(zip(returns, map(relative, states)))
     kept = states[returns.index(screened[0][0])]
     log(f"[verdict] {mode}: of {end.name}'s {len(states)} states, {kept.name} took the most return from the policy "
-        f"(mean return {screened[0][0]:.1f}, {queries:,} questions)")
-    return Trained(end, kept, screened, queries)
+        f"on the {scored_on[1]} scored episodes (mean return {screened[0][0]:.1f}, {queries:,} questions)")
+    return Trained(end, kept, screened, queries, {state.name: [round(float(x), 3) for x in r]
+                                                  for state, r in zip(states, episodes)}, tuple(scored_on))
+
+
+def kept_on(end: Path, made: dict, record: Path, victim_name: str, env_id: str, mode: str, eps: float, expert: str,
+            domain: str, horizon: int, scored_on: tuple[int, int], log=print) -> Trained:
+    """The :class:`Trained` a pipeline's record ``made`` names for the training that wrote ``end``, its states judged
+    again (:func:`keep_strongest`, the record rewritten) where they were judged on other episodes than
+    ``scored_on``."""
+    trained = kept_before(end, made)
+    if trained.scored_on == tuple(scored_on):
+        return trained
+    trained = keep_strongest(end, victim_name, env_id, mode, eps, expert, domain, horizon, scored_on, log)
+    record.write_text(json.dumps({**made, **kept_record(trained)}, indent=1) + "\n")
+    return trained
 
 
 def screen_against_policy(members: list[Path], victim_name: str, env_id: str, mode: str, eps: float, expert: str,
-                          domain: str, horizon: int, episodes: int = SCREEN_EPISODES) -> tuple[list[float], int]:
+                          domain: str, horizon: int) -> tuple[list[float], int]:
     """:func:`screen_members` against the policy ``victim_name`` itself, connected for it (its answers alone), and
     the questions that put to it."""
     with answering(victim_name, env_id, mode, domain) as victim:
         returns = screen_members(members, Stepped(victim.act), env_id, mode, eps, resolve_policy(expert, env_id),
-                                 horizon, episodes)
+                                 horizon)
         return returns, victim.asked
 
 
 def kept_record(trained: Trained) -> dict:
     """What a pipeline's record keeps of a training's states."""
-    return {"kept": trained.kept.name, "states_screened": trained.screened, "states_queries": trained.queries}
+    return {"kept": trained.kept.name, "states_screened": trained.screened, "states_queries": trained.queries,
+            "states_returns": trained.returns, "states_scored_on": list(trained.scored_on)}
 
 
 def kept_before(end: Path, made: dict) -> Trained:
     """The :class:`Trained` a pipeline's record ``made`` names for the training that wrote ``end``."""
-    return Trained(end, end.parent / made["kept"], [tuple(s) for s in made["states_screened"]], made["states_queries"])
+    return Trained(end, end.parent / made["kept"], [tuple(s) for s in made["states_screened"]], made["states_queries"],
+                   made["states_returns"], tuple(made["states_scored_on"]))
 
 
 def files_record(*made: Path | Trained) -> dict:
@@ -401,17 +431,25 @@ def screen_members(members: list[Path], policy, env_id: str, mode: str, eps: flo
                    horizon: int = HORIZON, episodes: int = SCREEN_EPISODES) -> list[float]:
     """Each adversary's mean return against ``policy`` (a surrogate, or the policy's answers) on ``episodes``
     screening episodes, scaled to ``eps``, in the members' order."""
-    scores = []
+    return [round(float(np.mean(returns)), 3) for returns in
+            episode_returns(members, policy, env_id, mode, eps, expert_policy, horizon, episodes, seeds.SCREENING)]
+
+
+def episode_returns(members: list[Path], policy, env_id: str, mode: str, eps: float, expert_policy, horizon: int,
+                    episodes: int, seed: int) -> list[np.ndarray]:
+    """Each adversary's return against ``policy`` (scaled to ``eps``) in each of ``episodes`` episodes from env seed
+    ``seed``, in the members' order."""
+    made = []
     for member in members:
         attack = LearnedAttack(layout_of(env_id), load_adversary(member, env_id, mode), eps=eps,
                                victim=policy, expert=expert_policy)
         engine = RolloutEngine(env_id, policy, expert_policy, attack, mode, episodes, horizon)
         returns = np.zeros(episodes)
-        for step in engine.iter_steps(episodes, seeds.SCREENING):
+        for step in engine.iter_steps(episodes, seed):
             returns[step.episodes] += step.reward
         engine.close()
-        scores.append(round(float(returns.mean()), 3))
-    return scores
+        made.append(returns)
+    return made
 
 
 def relative(path: Path) -> str:

@@ -171,7 +171,7 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert (sensory["adversary_kept_steps"], len(sensory["adversary_states_screened"])) == (trained["steps"], 1)
     assert (f"ARIL-A: `{sensory['adversary']}`, the state after {trained['steps']:,} of {trained['steps']:,} steps "
             f"trained against the policy ({trained['queries']:,} questions), the strongest of 1 state against the "
-            f"policy ({sensory['adversary_states_queries']:,} questions).") in text
+            f"policy on these episodes ({sensory['adversary_states_queries']:,} questions).") in text
     directed = load_adversary(out / "directed-sensory.pt")  # against the policy, from fresh weights
     trained = directed.meta["provenance"]
     assert (directed.meta["policy"], trained["victim"], trained["settings"]["init"]) == ("directed", "dagger", "")
@@ -180,7 +180,8 @@ def test_the_page_and_scorecard_json_say_how_the_black_box_pipeline_used_the_pol
     assert sensory["directed_zoo"] is None and sensory["directed_zoo_screened"] == []  # DAgger's own left out
     assert (f"Directed ARIL-A: `{sensory['directed']}`, the state after {trained['steps']:,} of {trained['steps']:,} "
             f"steps trained against the policy ({trained['queries']:,} questions), the strongest of 1 state against "
-            f"the policy ({sensory['directed_states_queries']:,} questions), from fresh weights") in text
+            f"the policy on these episodes ({sensory['directed_states_queries']:,} questions), from fresh "
+            "weights") in text
     for attack, file in (("transfer", sensory["surrogate"]), ("aril_a", sensory["zoo"])):  # the zoo's row
         alone = evaluate(EvalConfig(env=cfg.env, policy="dagger", mode="sensory", attack=attack, eps=sensory["eps"],
                                     attack_file=file, rescale=attack == "aril_a", episodes=3, seed=cfg.seed,

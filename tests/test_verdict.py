@@ -32,6 +32,8 @@ ENV, MODE, EPS = "Swimmer-v5", "sensory", 0.3
 HORIZON = 50
 STEPS = 4096
 """ARIL-A's training against the policy: one PPO update."""
+SCORED_ON = (4000, 3)
+"""The scored episodes a pipeline training's states are judged on: the first one's env seed, their count."""
 N_POSITION = layout_of(ENV).n_position
 
 
@@ -65,8 +67,9 @@ def run_pipeline(folder, eps: float = EPS):
         patch.setattr(verdict, "Answers", answers_only)
         patch.setattr(adversary, "load_policy", trained_against)
         made, directed = verdict.run_pipelines(
-            [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet, horizon=HORIZON),
-             verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, log=quiet)], quiet)
+            [verdict.pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, SCORED_ON, log=quiet, horizon=HORIZON),
+             verdict.directed_pipeline("dagger", ENV, MODE, eps, "expert", STEPS, folder, SCORED_ON, log=quiet)],
+            quiet)
     return dataclasses.replace(made, directed=directed), boxes
 
 
@@ -256,14 +259,14 @@ def test_the_directed_step_starts_from_the_directed_aril_a_that_takes_the_most_f
     policy's answers, counted, and the training starts from the strongest; a rerun makes nothing."""
     with answers_counted() as box:
         made = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
-                                                                log=quiet, horizon=HORIZON)], quiet)[0]
+                                                                SCORED_ON, log=quiet, horizon=HORIZON)], quiet)[0]
     members = zoo_members(ENV, MODE, victim_digest("bc", ENV, MODE), verdict.DIRECTED_ZOO)
     assert [member for _, member in made.screened] == [verdict.relative(m) for m in members]  # DAgger's
     assert str(made.zoo) == verdict.relative(members[0]) and made.queries == box[0].asked > 0
     trained = load_adversary(made.trained.end).meta["provenance"]
     assert trained["settings"]["init"] == str(made.zoo) and trained["victim"] == "bc"
     again = verdict.run_pipelines([verdict.directed_pipeline("bc", ENV, MODE, EPS, "expert", STEPS, tmp_path,
-                                                             log=quiet, horizon=HORIZON)], quiet)[0]
+                                                             SCORED_ON, log=quiet, horizon=HORIZON)], quiet)[0]
     assert again == made
 
 
@@ -292,7 +295,7 @@ def test_pipelines_side_by_side_make_the_files_each_makes_alone(pipeline, tmp_pa
     folder, alone, _ = pipeline
     with local_ray():
         both = verdict.run_pipelines([verdict.pipeline("dagger", ENV, mode, eps, "expert", STEPS, tmp_path,
-                                                       log=quiet, horizon=HORIZON)
+                                                       SCORED_ON, log=quiet, horizon=HORIZON)
                                       for mode, eps in ((MODE, EPS), ("physical", 0.005))], quiet, workers=2)
     assert [made.adversary.end.name for made in both] == [f"adversary-{MODE}.pt", "adversary-physical.pt"]
     # the same weights (their provenance has the times they were made)
@@ -332,7 +335,7 @@ def test_an_external_node_keeps_the_whole_zoo_unless_told_the_file_it_serves(tmp
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(verdict, "answering", lambda name, env, mode, domain: NodeStandIn())
         patch.setattr(adversary.plugins, "load", lambda group, name: lambda env_id: NodeStandIn())
-        made = one_pipeline("ros", ENV, MODE, EPS, "expert", STEPS, folder, log=quiet, horizon=HORIZON,
+        made = one_pipeline("ros", ENV, MODE, EPS, "expert", STEPS, folder, SCORED_ON, log=quiet, horizon=HORIZON,
                             leave_out="dagger")
     screened = {member for _, member in made.screened}
     assert screened == {verdict.relative(m) for m in zoo_members(ENV, MODE, own, verdict.ZOO_FOLDERS)}
@@ -631,22 +634,30 @@ def test_benchmark_adds_a_reference_candidate_bundled_since_and_judges_the_cell_
 def test_benchmark_keeps_every_episode_and_gives_the_ratio_its_interval(tmp_path, monkeypatch):
     """A scored cell keeps each episode's return (clean, every row, every reference candidate), and its ratio gets a
     paired bootstrap interval over the episodes: it holds the ratio and narrows as the episodes grow; rows that take
-    what the reference takes, episode by episode, give [1, 1]; a cell scored before returns were kept shows its ratio
-    alone."""
+    what the reference takes, episode by episode, give [1, 1]; each resample takes the strongest of a training row's
+    states again (the row was the strongest of them on these episodes); a cell scored before returns were kept shows
+    its ratio alone."""
     from aril_ros.benchmarks import verdict
 
     def cell_of(returns):
         return {"mean_return": float(np.mean(returns)), "episodes": [{"return": float(r)} for r in returns]}
 
-    def scored(episodes: int, aril_a_loss=None) -> dict:
+    def scored(episodes: int, aril_a_loss=None, other_state: bool = False) -> dict:
         rng = np.random.default_rng(episodes)
         clean = 5000 + 500 * rng.standard_normal(episodes)
         reference_loss = 2000 * (1 + 0.5 * rng.standard_normal(episodes))
         losses = {row: 100 * (1 + 0.5 * rng.standard_normal(episodes)) for row in (*verdict.BLACK_BOX_ROWS, "fgsm_k")}
         losses["aril_a"] = (reference_loss if aril_a_loss is None
                             else aril_a_loss * (1 + 0.5 * rng.standard_normal(episodes)))
-        monkeypatch.setattr(verdict, "scorecard_result", lambda *args: ({"clean": cell_of(clean), "attacks": {
-            row: {"1.0": cell_of(clean - loss)} for row, loss in losses.items()}}, 1.0))
+        # ARIL-A's training's other state: as strong on average, the row's the stronger on these episodes
+        other = aril_a_loss * (1 + 0.5 * rng.standard_normal(episodes)) if other_state else None
+        if other is not None:
+            other += losses["aril_a"].mean() - other.mean() - 1
+        states = {"adversary-physical.pt": list(clean - losses["aril_a"]),
+                  **({"adversary-physical-at-250000.pt": list(clean - other)} if other_state else {})}
+        monkeypatch.setattr(verdict, "scorecard_result", lambda *args: ({
+            "clean": cell_of(clean), "attacks": {row: {"1.0": cell_of(clean - loss)} for row, loss in losses.items()},
+            "adversary_states_returns": states, "directed_states_returns": {}}, 1.0))
         monkeypatch.setattr(verdict, "bundled_references", lambda *args: {"bundled_aril_a": tmp_path / "bundled.pt"})
         monkeypatch.setattr(verdict, "episode_cell", lambda cfg: cell_of(clean - reference_loss))
         cfg = verdict.VerdictBenchConfig(out=str(tmp_path / str(episodes)), episodes=episodes)
@@ -666,6 +677,10 @@ def test_benchmark_keeps_every_episode_and_gives_the_ratio_its_interval(tmp_path
     low, high = many["ratio_ci95"]
     assert f"| {many['ratio']:.2f} [{low:.2f}, {high:.2f}] |" in verdict.table([{"quick": many}], ["quick"])
     assert scored(20)["ratio_ci95"] == pytest.approx([1.0, 1.0])
+    both = scored(20, aril_a_loss=1800, other_state=True)
+    assert both["drops"]["aril_a"]["states_returns"]["adversary-physical-at-250000.pt"] is not None
+    assert both["ratio"] == pytest.approx(few["ratio"])  # the same row's figure: the stronger state on these episodes
+    assert both["ratio_ci95"][0] > few["ratio_ci95"][0] and both["ratio_ci95"][1] > few["ratio_ci95"][1]
     old = verdict.judged(bench_cell({"aril_a": -40.0}))
     assert old["ratio_ci95"] is None and "| 0.80 |" in verdict.table([{"quick": old}], ["quick"])
 
@@ -728,20 +743,33 @@ def test_benchmark_judges_a_cell_without_fd_fgsm_scored_as_the_budget_no_longer_
 
 
 @pytest.mark.slow
-def test_a_pipeline_training_keeps_its_state_that_takes_the_most_from_the_policy(tmp_path):
-    """The states a training kept (its snapshots and its end) are screened against the policy's answers on screening
-    episodes, every question counted; the row gets the one with the lowest mean return, and a rerun's record names it
-    again."""
+def test_a_pipeline_training_keeps_its_state_that_takes_the_most_from_the_policy_on_the_scored_episodes(tmp_path):
+    """The states a training kept (its snapshots and its end) run against the policy's answers on the scored episodes,
+    every question counted: the row gets the one with the lowest mean return, whose returns are the row's cell's
+    episode by episode (so the row is the strongest state on the very episodes it reports); every state's returns are
+    kept, and a rerun's record names the same state, or on other scored episodes judges the states again."""
     end = adversary.train_adversary(adversary.AdversaryConfig(
         env=ENV, mode=MODE, eps=EPS, victim="dagger", steps=3 * STEPS, snapshot_every=STEPS,
         out=str(tmp_path / "a.pt")), log=quiet)
     states = [*adversary.snapshots_of(end), end]
     assert [path.name for path in states] == [f"a-at-{STEPS}.pt", f"a-at-{2 * STEPS}.pt", "a.pt"]
+    seed, episodes = SCORED_ON
     with answers_counted() as box:
-        trained = verdict.keep_strongest(end, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, quiet)
-    returns = verdict.screen_members(states, resolve_policy("dagger", ENV), ENV, MODE, EPS,
-                                     resolve_policy("expert", ENV), HORIZON, verdict.STATE_EPISODES)
-    assert trained.screened == sorted(zip(returns, map(verdict.relative, states)))
-    assert trained.end == end and trained.kept == states[int(np.argmin(returns))]
-    assert trained.queries == box[0].asked >= 3 * verdict.STATE_EPISODES  # a question a step at least
-    assert verdict.kept_before(end, json.loads(json.dumps(verdict.kept_record(trained)))) == trained
+        trained = verdict.keep_strongest(end, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, SCORED_ON, quiet)
+    cells = [evaluate(EvalConfig(env=ENV, policy="dagger", mode=MODE, attack="aril_a", eps=EPS, attack_file=str(state),
+                                 rescale=True, episodes=episodes, seed=seed, horizon=HORIZON)) for state in states]
+    assert trained.returns == {state.name: cell["returns"] for state, cell in zip(states, cells)}
+    means = [round(float(np.mean(cell["returns"])), 3) for cell in cells]
+    assert trained.screened == sorted(zip(means, map(verdict.relative, states)))
+    assert trained.end == end and trained.kept == states[int(np.argmin(means))] and trained.scored_on == SCORED_ON
+    assert trained.queries == box[0].asked >= 3 * episodes  # a question a step at least
+    record = tmp_path / "record.json"
+    made = json.loads(json.dumps(verdict.kept_record(trained)))
+    assert verdict.kept_before(end, made) == trained
+    assert verdict.kept_on(end, made, record, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, SCORED_ON) == trained
+    assert not record.exists()  # judged on these episodes already: nothing run, nothing written
+    other = (seed + 100, episodes + 1)
+    again = verdict.kept_on(end, {**made, "zoo": None}, record, "dagger", ENV, MODE, EPS, "expert", "", HORIZON, other,
+                            quiet)
+    assert again.scored_on == other and all(len(r) == other[1] for r in again.returns.values())
+    assert json.loads(record.read_text()) == {"zoo": None, **json.loads(json.dumps(verdict.kept_record(again)))}

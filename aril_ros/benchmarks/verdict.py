@@ -52,6 +52,9 @@ DEFAULT_EPISODES = 20
 EPISODES = {"Ant-v5": 50}
 """Episodes per cell where 20 leave the verdict's interval wider than its drop: Ant's clean episodes range from a
 dozen steps to the full horizon (issue 38: at 10 episodes its drops swung by 20-70 points)."""
+TRAINED_ROWS = {"aril_a": "adversary", DIRECTED_ROW: "directed"}
+"""The rows that run the strongest of a pipeline training's states on the scored episodes, and the training's name in
+a scorecard's record (:func:`aril_ros.scorecard.training_record`)."""
 RATIO_RESAMPLES = 10_000
 """Bootstrap resamples of a cell's episodes behind its ratio's interval (:func:`ratio_interval`)."""
 WIDEN_AT_MOST = 4
@@ -248,6 +251,8 @@ def scorecard_figures(cfg: VerdictBenchConfig, env: str, policy: str, mode: str,
     result, minutes = scorecard_result(cfg, env, policy, mode, budget, episodes, [*BLACK_BOX_ROWS, "fgsm_k"],
                                        cell_folder(cfg, env, policy, mode, budget))
     drops = {row: paired(result["clean"], result["attacks"][row]["1.0"]) for row in BLACK_BOX_ROWS}
+    for row, training in TRAINED_ROWS.items():  # the states its row was the strongest of, on these episodes
+        drops[row]["states_returns"] = result[f"{training}_states_returns"]
     return {"env": env, "policy": policy, "mode": mode, "budget": budget, "minutes": round(minutes, 2),
             "clean": result["clean"]["mean_return"], "clean_returns": returns_of(result["clean"]), "drops": drops,
             "episodes": episodes, "seed": cfg.seed,
@@ -284,9 +289,10 @@ def judged(figures: dict) -> dict:
 def ratio_interval(figures: dict, rows: list[str]) -> list[float] | None:
     """The 95% interval of a cell's ratio, its budget's verdict over its reference: a paired bootstrap over the
     cell's episodes (percentiles of :data:`RATIO_RESAMPLES` resamples, seeded), each resample taking again the worst
-    of the budget's ``rows`` and the strongest reference candidate, as the cell's own figures were taken. Where it
-    holds the target ratio, the episodes cannot tell the verdict from it. None for a cell with a row or reference
-    candidate scored before cells kept their episodes' returns (2026-12-07)."""
+    of the budget's ``rows`` (of a training's row, the strongest of its states: :data:`TRAINED_ROWS`) and the
+    strongest reference candidate, as the cell's own figures were taken. Where it holds the target ratio, the episodes
+    cannot tell the verdict from it. None for a cell with a row or reference candidate scored before cells kept their
+    episodes' returns (2026-12-07)."""
     candidates = figures["reference"]["drops"].values()
     if "clean_returns" not in figures or any("returns" not in figures["drops"][row] for row in rows) or any(
             "returns" not in candidate for candidate in candidates):
@@ -297,7 +303,8 @@ def ratio_interval(figures: dict, rows: list[str]) -> list[float] | None:
     def strongest(returns: list[list[float]]) -> np.ndarray:  # per resample, the largest mean loss of return
         return np.max([(clean - np.asarray(r))[picks].mean(axis=1) for r in returns], axis=0)
 
-    ratios = (strongest([figures["drops"][row]["returns"] for row in rows])
+    ratios = (strongest([returns for row in rows for returns in
+                         [figures["drops"][row]["returns"], *figures["drops"][row].get("states_returns", {}).values()]])
               / strongest([candidate["returns"] for candidate in candidates]))
     return [float(q) for q in np.percentile(ratios, [2.5, 97.5])]
 

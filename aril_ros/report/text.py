@@ -302,14 +302,15 @@ HOW_ATTACKS_ASK = (
     "- ARIL-A from the zoo: the bundled adversary (none trained against this very file) that took the most return "
     "from the surrogate on screening episodes; one question per step when the policy's action is an input of it;",
     "- ARIL-A: trained from the zoo's adversary against the policy's answers (two questions a training step: its "
-    "action on the true state and on the perturbed one; the count below); asks as the zoo's;",
+    "action on the true state and on the perturbed one; the count below); of the states its training kept, the one "
+    "that took the most return on these very episodes; asks as the zoo's;",
     "- ARIL-A + search: ARIL-A's choice and 8 of its draws, the policy asked about all 9 each step besides "
     "ARIL-A's own question, the most damaging applied;",
     "- ARIL-A, directed: trained against the policy's answers (the count below) from the bundled directed ARIL-A "
     "that took the most return from it on screening episodes (none trained against this very file); it picks a "
     "direction for the policy's action, asks the policy about two points per perturbed entry each step (its action's "
     "slope along each) besides its own question, and takes the corner of the box that moves the action furthest "
-    "along that direction;",
+    "along that direction; its state chosen as ARIL-A's;",
     "- FGSM, FGSM^k (a file only): white-box, the gradient of the file itself.")
 
 
@@ -335,12 +336,12 @@ def pipeline_lines(mode_result: dict) -> list[str]:
 
 def kept_state(mode_result: dict, name: str) -> str:
     """How a pipeline training ``name`` (adversary, directed) went: its steps and questions, and which of its states
-    the row used (the one that took the most return from the policy on screening episodes)."""
+    the row used (the one that took the most return from the policy on the scored episodes)."""
     states = len(mode_result[f"{name}_states_screened"])
     return (f"the state after {mode_result[f'{name}_kept_steps']:,} of {mode_result[f'{name}_steps']:,} steps trained "
             f"against the policy ({mode_result[f'{name}_queries']:,} questions), the strongest of {states} "
-            f"state{'s' if states != 1 else ''} against the policy ({mode_result[f'{name}_states_queries']:,} "
-            "questions)")
+            f"state{'s' if states != 1 else ''} against the policy on these episodes "
+            f"({mode_result[f'{name}_states_queries']:,} questions)")
 
 
 def too_few_episodes(worst: dict, episodes: int) -> list[str]:
