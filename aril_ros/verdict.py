@@ -59,7 +59,7 @@ from .sweep import Produced, Shipped, digest_of, run_tasks, shipped
 SEARCH = 8
 """Candidates a step of ``aril_a_search`` asks the policy about (and the adversary's own choice): on HalfCheetah
 DAgger sensory 8 took 49% of the return where none took 39% (results/aril_a_tuning.md, issue 38)."""
-PIPELINE = 5
+PIPELINE = 6
 """The pipeline's version in its record: files a pipeline of another version made are made again (2: the zoo's best
 may take the trained ARIL-A's place; 3: the surrogate fitted to the policy's variation inside the box too; 4: ARIL-A
 trained against the policy itself, the surrogate fitted once; 5: the strongest of ARIL-A's states kept, on screening
@@ -74,7 +74,7 @@ DIRECTED_ZOO = (DATA_DIR / "directed-adversary",)
 against the policy itself (a director's direction is in the policy's action space, which a copy's errors would
 bend): on HalfCheetah DR and ARIL sensory, DAgger's directed ARIL-A trained 500k steps more against the learner took
 -34.4% and -11.3% where 500k from fresh weights took -30.9% and -7.3% (results/aril_a_tuning.md, issue 38)."""
-DIRECTED = 2
+DIRECTED = 3
 """The directed step's version in its record (``directed-<mode>.json``): a file another version made is made again
 (2: the strongest of the training's states kept, on screening episodes; 3: on the scored episodes)."""
 SNAPSHOT_EVERY = 250_000
