@@ -34,6 +34,7 @@ from .runlog import RunLogError, recover
 from .scan import ScanConfig, scan_adversary
 from .scorecard import ScorecardConfig, scorecard
 from .timing_table import TimingTableConfig, timing_table
+from .validated import ValidateConfig, validate_defense
 from .verdict import FitSurrogateConfig, fit_surrogate_command
 
 
@@ -91,6 +92,9 @@ COMMANDS = {
                             "search); writes results/."),
     "defense-table": Command(DefenseTableConfig, defense_table, "The paper's Robust IL rows: each defense under the "
                              "strongest attack against it; writes results/."),
+    "validate-defense": Command(ValidateConfig, validate_defense, "Of learners trained for one env and mode, keep the "
+                                "one whose worst attack (an ARIL-A trained against it among them) leaves it the most "
+                                "return on validation episodes: the defense ARIL-V (candidates:=aril,dr)."),
     "timing-table": Command(TimingTableConfig, timing_table, "Each defense under its worst timing attack (late or "
                             "dropped observations, late actions; fixed, random and learned) over its training "
                             "seeds; writes results/timing.{json,md}."),

@@ -28,6 +28,8 @@ SURROGATE = 6_000
 """The black-box pipeline (:mod:`aril_ros.verdict`): the episodes its surrogate's victim drives, 6000..6499."""
 SCREENING = 6_500
 """The black-box pipeline: the episodes on which the zoo's adversaries are screened, 6500..6999."""
+VALIDATION = 8_000
+"""``aril validate-defense`` (the defense ARIL-V): the episodes on which its candidates are judged, 8000..8999."""
 SELECTION = 10_000
 """Keeping the best during training (experts, GAIL, BC's check): 10000..10999."""
 GAIL_DEMOS = 20_000
@@ -48,6 +50,10 @@ every training seed below 1000, so no two share their env seeds."""
 ROUND_JUDGING = 5_000
 """Offset inside a round's slice where ``train-learner round_attacks:=`` judges the round's candidate attacks on
 pi_r (after the round's own collection, which takes its first ``episodes`` seeds)."""
+VALIDATION_ADVERSARY = 3
+"""The training seed of ``aril validate-defense``'s ARIL-A against each candidate: the tables' ARIL-As train with
+seeds 0..2 (a bundled one is the strongest of three), so the judge that chooses a learner is none of those that
+score it."""
 ADVERSARY_SLICE = 500_000
 """Offset inside a training seed's block where ``train-adversary`` draws its episodes (after the rounds)."""
 
