@@ -10,7 +10,7 @@ from aril_ros import registry, seeds
 
 EVALUATIONS = {"calibration": seeds.CALIBRATION, "attack table": seeds.ATTACK_TABLE,
                "defense table": seeds.DEFENSE_TABLE, "selection": seeds.SELECTION, "gail demos": seeds.GAIL_DEMOS,
-               "learner eval": seeds.LEARNER_EVAL}
+               "learner eval": seeds.LEARNER_EVAL, "validation": seeds.VALIDATION}
 RANGE = 1000  # episodes an evaluation may take from its first seed
 
 
