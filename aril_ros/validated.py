@@ -8,7 +8,7 @@ uniform +-eps noise) does not, and the other way round, seed by seed. HalfCheeta
 adversary is best, a judge the learner was just trained against. ARIL-V (``candidates:=aril,dr``) runs Algorithm 1
 with both families of round adversaries and keeps the learner a fresh judge finds strongest: the worst of every attack
 the defense tables use, an ARIL-A among them trained against that very candidate with a seed no table's ARIL-A has
-(:data:`~aril_ros.seeds.VALIDATION_ADVERSARY`), on env seeds :data:`~aril_ros.seeds.VALIDATION`... .
+(:data:`~aril_ros.seeds.VALIDATION_ADVERSARY`), on env seeds :data:`~aril_ros.seeds.VALIDATION` onwards.
 
 On disk::
 
@@ -69,10 +69,13 @@ def checked(cfg: ValidateConfig) -> tuple[ValidateConfig, dict[str, Path]]:
     names = comma_list(cfg.candidates)
     if len(names) < 2 or len(set(names)) < len(names):
         raise ValueError(f"candidates:= takes at least two different learners, got {cfg.candidates!r}")
-    files = {name: policy_file(name, cfg.env, cfg.mode) for name in names}
-    for name, file in files.items():
+    files = {}
+    for name in names:
+        file = policy_file(name, cfg.env, cfg.mode)
         if not file.is_file():
             raise ValueError(f"candidate {name!r}: no policy file at {file}")
+        # keyed as the record names them: a file inside the checkout by its relative path, as every record does
+        files[portable(str(file.resolve())) if Path(name).suffix else name] = file
     eps = cfg.eps or calibrated_eps(cfg.env, cfg.mode)
     out = cfg.out or f"runs/aril_v-{cfg.env}-{cfg.mode}.pt"
     return dataclasses.replace(cfg, eps=eps, out=out), files
@@ -101,15 +104,15 @@ def judged(cfg: ValidateConfig, files: dict[str, Path], adversaries: dict[str, P
              "attack_file": str(adversaries[name]) if attack == "aril_a" else "", "episodes": cfg.episodes,
              "seed": seeds.VALIDATION, "horizon": cfg.horizon} for name, attack in points]
     results = evaluate_all(jobs, cfg.workers, cfg.address, log, label="validation evaluations")
-    judged = {name: {"file": portable(str(files[name])), "sha256": digest_of(files[name].read_bytes()),
-                     "adversary": portable(str(adversaries[name])), "returns": {}} for name in files}
+    records = {name: {"file": portable(str(files[name])), "sha256": digest_of(files[name].read_bytes()),
+                      "adversary": portable(str(adversaries[name])), "returns": {}} for name in files}
     for (name, attack), result in zip(points, results):
-        judged[name]["returns"][attack] = round(float(result["mean_return"]), 3)
-    for record in judged.values():
+        records[name]["returns"][attack] = round(float(result["mean_return"]), 3)
+    for record in records.values():
         attacked = {a: r for a, r in record["returns"].items() if a != "none"}
         worst = min(attacked, key=attacked.get)
         record["worst"] = {"attack": worst, "mean_return": attacked[worst]}
-    return judged
+    return records
 
 
 def validate_defense(cfg: ValidateConfig, log=print) -> Path:
