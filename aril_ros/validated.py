@@ -16,7 +16,8 @@ On disk::
                           row (its cached evaluations, the ARIL-A trained against it) and the file's own provenance
                           says how it was trained
     <out without .pt>.json the choice: per candidate its file and digest, its validation adversary, its mean
-                          return clean and under each attack, its worst; which was chosen; the command and CPU
+                          return clean and under each attack, its worst; which was chosen; the command, the CPU
+                          and the CPU seconds of the adversaries' trainings and of the evaluations
     <work_dir>/<env>-<mode>-<candidate>-validation.pt   each candidate's validation ARIL-A (kept: a rerun resumes)
 """
 from __future__ import annotations
@@ -30,6 +31,7 @@ from pathlib import Path
 
 from . import seeds
 from .adversary import AdversaryConfig, ready_adversaries
+from .adversary_net import load_adversary
 from .args import arg, comma_list
 from .envs import HORIZON
 from .evaluation import evaluate_all
@@ -95,24 +97,28 @@ def validation_adversaries(cfg: ValidateConfig, files: dict[str, Path], log) -> 
     return dict(zip(wanted, ready_adversaries(list(wanted.values()), False, log, cfg.workers, cfg.address)))
 
 
-def judged(cfg: ValidateConfig, files: dict[str, Path], adversaries: dict[str, Path], log) -> dict[str, dict]:
+def judged(cfg: ValidateConfig, files: dict[str, Path], adversaries: dict[str, Path], log
+           ) -> tuple[dict[str, dict], float]:
     """Each candidate's mean return clean and under each of the tables' attacks (:data:`~aril_ros.registry.THREATS`),
-    every one on the same validation episodes, and its worst attack."""
+    every one on the same validation episodes, and its worst attack; and the seconds the evaluations took."""
     points = [(name, attack) for name in files for attack in ("none", *THREATS)]
     jobs = [{"env": cfg.env, "policy": str(files[name]), "expert": cfg.expert,
              "mode": "clean" if attack == "none" else cfg.mode, "attack": attack, "eps": cfg.eps,
              "attack_file": str(adversaries[name]) if attack == "aril_a" else "", "episodes": cfg.episodes,
              "seed": seeds.VALIDATION, "horizon": cfg.horizon} for name, attack in points]
     results = evaluate_all(jobs, cfg.workers, cfg.address, log, label="validation evaluations")
+    seconds = sum(result["steps"] / result["steps_per_s"] for result in results)
     records = {name: {"file": portable(str(files[name])), "sha256": digest_of(files[name].read_bytes()),
-                      "adversary": portable(str(adversaries[name])), "returns": {}} for name in files}
+                      "adversary": portable(str(adversaries[name])),
+                      "adversary_sha256": digest_of(Path(adversaries[name]).read_bytes()), "returns": {}}
+               for name in files}
     for (name, attack), result in zip(points, results):
         records[name]["returns"][attack] = round(float(result["mean_return"]), 3)
     for record in records.values():
         attacked = {a: r for a, r in record["returns"].items() if a != "none"}
         worst = min(attacked, key=attacked.get)
         record["worst"] = {"attack": worst, "mean_return": attacked[worst]}
-    return records
+    return records, seconds
 
 
 def validate_defense(cfg: ValidateConfig, log=print) -> Path:
@@ -123,11 +129,14 @@ def validate_defense(cfg: ValidateConfig, log=print) -> Path:
     made = stamp("aril validate-defense", cfg)
     with session(cfg.workers, cfg.address):
         adversaries = validation_adversaries(cfg, files, log)
-        candidates = judged(cfg, files, adversaries, log)
+        candidates, evaluation_seconds = judged(cfg, files, adversaries, log)
+    training_seconds = sum(load_adversary(file).meta["provenance"]["train_seconds"] for file in adversaries.values())
     chosen = max(candidates, key=lambda name: candidates[name]["worst"]["mean_return"])  # the first on a tie
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    record = {**made, "cpu": cpu(), "seconds": round(time.time() - started, 1), "env": cfg.env, "mode": cfg.mode,
+    record = {**made, "cpu": cpu(), "seconds": round(time.time() - started, 1),
+              "cpu_seconds": {"adversaries": round(training_seconds, 1), "evaluations": round(evaluation_seconds, 1)},
+              "env": cfg.env, "mode": cfg.mode,
               "eps": cfg.eps, "episode_seeds": f"{seeds.VALIDATION}..{seeds.VALIDATION + cfg.episodes - 1}",
               "chosen": chosen, "candidates": candidates}
     write_atomically(out, lambda partial: shutil.copyfile(files[chosen], partial))

@@ -13,6 +13,7 @@ from aril_ros.cli import main
 from aril_ros.evaluation import EvalConfig, evaluate
 from aril_ros.policy import PolicyFileError
 from aril_ros.registry import THREATS, bundled_file, calibrated_eps
+from aril_ros.sweep import digest_of
 from aril_ros.validated import ValidateConfig, validate_defense
 
 ENV, MODE = "Swimmer-v5", "sensory"
@@ -44,6 +45,9 @@ def test_the_kept_learner_is_a_byte_copy_of_the_candidate_with_the_best_worst_ca
         c["worst"]["mean_return"] for c in record["candidates"].values())
     assert out.read_bytes() == bundled_file(chosen, ENV, MODE).read_bytes()
     assert record["episode_seeds"] == f"{seeds.VALIDATION}..{seeds.VALIDATION + 1}"
+    # the compute the choice took, which the report adds to the defense's
+    assert set(record["cpu_seconds"]) == {"adversaries", "evaluations"}
+    assert record["cpu_seconds"]["evaluations"] > 0 and record["cpu_seconds"]["adversaries"] >= 0
 
 
 def test_each_candidate_is_judged_by_an_aril_a_trained_against_it_with_the_validation_seed(validated):
@@ -54,6 +58,7 @@ def test_each_candidate_is_judged_by_an_aril_a_trained_against_it_with_the_valid
         adversary = Path(cfg.work_dir) / f"{ENV}-{MODE}-{name}-validation.pt"
         assert trained_for(adversary, eps, str(bundled_file(name, ENV, MODE)), ENV, MODE)
         assert load_adversary(adversary).meta["provenance"]["settings"]["seed"] == seeds.VALIDATION_ADVERSARY
+        assert candidate["adversary_sha256"] == digest_of(adversary.read_bytes())  # the judge, though not kept
         # the figures are those of the validation episodes, which no table shares
         again = evaluate(EvalConfig(env=ENV, policy=name, mode=MODE, attack="aril_a", attack_file=str(adversary),
                                     eps=eps, episodes=2, seed=seeds.VALIDATION, horizon=20))
